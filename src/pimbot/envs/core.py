@@ -1,0 +1,138 @@
+"""The functional environment protocol and the versioned registry.
+
+An environment is a frozen dataclass (hashable, so it can be a static argument
+of `jax.jit`) whose fields are its parameters. It is pure: `reset(key)` and
+`step(key, state, actions)` never touch global state and are jit- and
+vmap-able. Variants are parameters, never copied classes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any, Protocol
+
+import jax
+
+
+class InvalidParameter(ValueError):
+    """A bad environment (or other) parameter; the message names the field and what is allowed."""
+
+
+class Env(Protocol):
+    """What every registered environment provides.
+
+    Attributes:
+        num_agents: number of agents N.
+        num_actions: size of each agent's discrete action set.
+        obs_dim: length of each agent's observation vector.
+        max_steps: episode horizon (episodes may terminate earlier).
+        incentive_obs: True when the last N-1 entries of an observation are the
+            cumulative incentives the agent has given to each other agent this
+            episode; the env leaves them zero and an incentive learner fills them.
+        idle_action: the action an agent takes when it "does nothing"
+            (used by the bypass manipulation).
+    """
+
+    num_agents: int
+    num_actions: int
+    obs_dim: int
+    max_steps: int
+    incentive_obs: bool
+    idle_action: int
+
+    def reset(self, key: jax.Array) -> tuple[jax.Array, Any]:
+        """Returns (obs float32 [N, obs_dim], state)."""
+        ...
+
+    def step(
+        self, key: jax.Array, state: Any, actions: jax.Array
+    ) -> tuple[jax.Array, Any, jax.Array, jax.Array, dict[str, jax.Array]]:
+        """Returns (obs [N, obs_dim], state, rewards float32 [N], done bool [], info).
+
+        `info["success"]` is a bool scalar for this step (env-specific meaning).
+        """
+        ...
+
+    def obs_bounds(self) -> tuple[float, float]:
+        """Lower and upper bound of every observation entry (inf where unbounded)."""
+        ...
+
+    def episode_success(
+        self, success_steps: jax.Array, num_steps: jax.Array, env_return: jax.Array
+    ) -> jax.Array:
+        """Success score of one episode in [0, 1] from its per-step flags.
+
+        Args:
+            success_steps: number of steps whose `info["success"]` was true.
+            num_steps: number of steps the episode lasted.
+            env_return: float32 [N] environment return of each agent.
+        """
+        ...
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvSpec:
+    """A registry entry: the id, the constructor, and a one-line description."""
+
+    env_id: str
+    constructor: Callable[..., Env]
+    description: str
+
+    def parameters(self) -> dict[str, Any]:
+        """The constructor's parameters with their defaults."""
+        return {
+            f.name: f.default
+            for f in dataclasses.fields(self.constructor)  # type: ignore[arg-type]
+            if f.init
+        }
+
+
+_REGISTRY: dict[str, EnvSpec] = {}
+
+
+def register(env_id: str, constructor: Callable[..., Env], description: str) -> None:
+    """Adds an environment constructor under a versioned id (e.g. ``"my_env-v0"``)."""
+    if env_id in _REGISTRY:
+        raise ValueError(f"env id {env_id!r} is already registered")
+    _REGISTRY[env_id] = EnvSpec(env_id, constructor, description)
+
+
+def registered() -> list[str]:
+    """The registered environment ids, sorted."""
+    return sorted(_REGISTRY)
+
+
+def spec(env_id: str) -> EnvSpec:
+    """The registry entry of `env_id`; unknown ids fail listing the valid ones."""
+    if env_id not in _REGISTRY:
+        raise InvalidParameter(
+            f"env_id: unknown environment {env_id!r}; registered: {', '.join(registered())}"
+        )
+    return _REGISTRY[env_id]
+
+
+def make(env_id: str, **params: Any) -> Env:
+    """Builds the environment `env_id` with the given parameters.
+
+    Raises:
+        InvalidParameter: unknown id, unknown parameter name, or a bad value;
+            the message names the field and the allowed values.
+    """
+    entry = spec(env_id)
+    allowed = entry.parameters()
+    for name in params:
+        if name not in allowed:
+            raise InvalidParameter(
+                f"{name}: not a parameter of {env_id}; allowed: {', '.join(allowed) or 'none'}"
+            )
+    return entry.constructor(**params)
+
+
+def check_int(name: str, value: Any, low: int, high: int | None = None) -> None:
+    """Raises InvalidParameter unless `value` is an int in [low, high]."""
+    upper = "∞" if high is None else str(high)
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise InvalidParameter(f"{name}: must be an integer in [{low}, {upper}], got {value!r}")
+    if value < low or (high is not None and value > high):
+        raise InvalidParameter(f"{name}: must be an integer in [{low}, {upper}], got {value}")
