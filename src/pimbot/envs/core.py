@@ -32,6 +32,11 @@ class Env(Protocol):
             episode; the env leaves them zero and an incentive learner fills them.
         idle_action: the action an agent takes when it "does nothing"
             (used by the bypass manipulation).
+        stochastic: False when `reset` and `step` ignore their key (the
+            conformance check then asserts that the key changes nothing).
+        terminates_on_success: True when a successful step ends the episode
+            (a genuine terminal state); otherwise `done` only marks the horizon
+            `max_steps`, which the PettingZoo adapter reports as truncation.
     """
 
     num_agents: int
@@ -40,6 +45,8 @@ class Env(Protocol):
     max_steps: int
     incentive_obs: bool
     idle_action: int
+    stochastic: bool
+    terminates_on_success: bool
 
     def reset(self, key: jax.Array) -> tuple[jax.Array, Any]:
         """Returns (obs float32 [N, obs_dim], state)."""

@@ -45,6 +45,7 @@ class EscapeRoom:
     num_actions: int = dataclasses.field(default=3, init=False)
     incentive_obs: bool = dataclasses.field(default=True, init=False)
     idle_action: int = dataclasses.field(default=START, init=False)
+    terminates_on_success: bool = dataclasses.field(default=True, init=False)
 
     def __post_init__(self) -> None:
         check_int("n_agents", self.n_agents, 2)
@@ -67,6 +68,10 @@ class EscapeRoom:
     @property
     def num_agents(self) -> int:
         return self.n_agents
+
+    @property
+    def stochastic(self) -> bool:
+        return self.randomize_start
 
     @property
     def obs_dim(self) -> int:

@@ -1,0 +1,177 @@
+"""The `pimbot` command line.
+
+    pimbot train ENV_ID [name=value ...] --learner lio --seeds 10 --iterations 50000 --out DIR
+    pimbot envs
+    pimbot learners
+
+Bad input prints one line naming the field and the allowed values and exits
+with status 2, before anything is written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+
+class UsageError(Exception):
+    """A bad command line; the message is printed as one line."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # one clear line instead of usage + message
+        raise UsageError(message)
+
+
+def _int_arg(name: str, low: int):
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise UsageError(f"{name}: must be an integer ≥ {low}, got {text!r}") from None
+        if value < low:
+            raise UsageError(f"{name}: must be an integer ≥ {low}, got {value}")
+        return value
+
+    return parse
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="pimbot", description=__doc__.split("\n")[0])
+    commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    train = commands.add_parser("train", help="train one learner on one environment, S seeds")
+    train.add_argument("env_id", help="environment id (see `pimbot envs`)")
+    train.add_argument(
+        "env_params",
+        nargs="*",
+        metavar="name=value",
+        help="environment parameters, e.g. n_agents=4 min_at_lever=2",
+    )
+    train.add_argument("--learner", default="lio", help="learner (see `pimbot learners`)")
+    train.add_argument("--seeds", type=_int_arg("seeds", 1), default=10, help="number of seeds")
+    train.add_argument(
+        "--first-seed", type=_int_arg("first_seed", 0), default=0, help="first seed value"
+    )
+    train.add_argument(
+        "--iterations",
+        type=_int_arg("iterations", 1),
+        default=50_000,
+        help="training iterations per seed",
+    )
+    train.add_argument(
+        "--eval-period",
+        type=_int_arg("eval_period", 1),
+        default=None,
+        help="iterations between evaluations (default: ER 100, others 1000)",
+    )
+    train.add_argument(
+        "--eval-episodes",
+        type=_int_arg("eval_episodes", 1),
+        default=None,
+        help="episodes per evaluation (default 10)",
+    )
+    train.add_argument(
+        "--hp",
+        action="append",
+        default=[],
+        metavar="name=value",
+        help="override a learner hyperparameter (repeatable), e.g. --hp lr_policy=1e-3",
+    )
+    train.add_argument("--out", required=True, help="run directory (created; rerun to resume)")
+    train.add_argument("--quiet", action="store_true", help="no progress display")
+
+    commands.add_parser("envs", help="list environments and their parameters")
+    commands.add_parser("learners", help="list learners and their hyperparameters")
+    return parser
+
+
+def _use_all_cpu_cores() -> None:
+    """Exposes one XLA host device per CPU core (seeds are sharded over devices).
+
+    Must run before jax is imported; it does not affect GPU backends.
+    """
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    flags = os.environ.get("XLA_FLAGS", "")
+    if cores and cores > 1 and "xla_force_host_platform_device_count" not in flags:
+        os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={cores}".strip()
+
+
+def cmd_envs() -> int:
+    from pimbot import envs
+
+    for env_id in envs.registered():
+        entry = envs.spec(env_id)
+        print(f"{env_id}: {entry.description}")
+        for name, default in entry.parameters().items():
+            print(f"    {name} = {default!r}")
+    return 0
+
+
+def cmd_learners() -> int:
+    import dataclasses
+
+    from pimbot import learners
+
+    for name in learners.registered():
+        definition = learners.get(name)
+        print(f"{name}: {definition.description}")
+        for f in dataclasses.fields(definition.config_cls):
+            print(f"    {f.name} = {f.default!r}")
+    print("(defaults shown are the Escape Room ones; other environments use the IPD column)")
+    return 0
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from pimbot.experiment import runner
+    from pimbot.experiment.config import RunConfig, parse_env_params, parse_hparams
+
+    run = RunConfig(
+        env_id=args.env_id,
+        env_params=parse_env_params(args.env_id, args.env_params),
+        learner=args.learner,
+        hparams=parse_hparams(args.learner, args.hp),
+        seeds=args.seeds,
+        first_seed=args.first_seed,
+        iterations=args.iterations,
+        eval_period=args.eval_period,
+        eval_episodes=args.eval_episodes,
+    )
+    result = runner.train(run, args.out, progress=not args.quiet)
+    if result.already_finished:
+        print(f"{result.run_dir}: this run has already finished; nothing to do.")
+    final = result.summary["final"]
+    parts = [f"success {final['eval/success']['mean']:.3f}"]
+    if "eval/return_ratio" in final:
+        parts.append(f"return ratio {final['eval/return_ratio']['mean']:.3f}")
+    conv = result.summary["convergence"]
+    parts.append(
+        f"converged seeds {conv['converged_seeds']}/{len(result.summary['seeds'])}"
+        + (f", median convergence {conv['median']:.0f} it" if conv["median"] is not None else "")
+    )
+    print(f"{result.run_dir}: " + ", ".join(parts))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    from pimbot.envs.core import InvalidParameter
+
+    try:
+        args = build_parser().parse_args(argv)
+        if args.command == "envs":
+            return cmd_envs()
+        if args.command == "learners":
+            return cmd_learners()
+        _use_all_cpu_cores()
+        return cmd_train(args)
+    except (UsageError, InvalidParameter) as error:
+        print(f"pimbot: error: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("pimbot: interrupted; rerun the same command to resume", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,180 @@
+"""Frozen run configurations and their validation.
+
+A `RunConfig` is what `pimbot train` runs: one env × one learner × S seeds.
+`resolve` turns it into the concrete env object and learner config, failing
+with `InvalidParameter` (naming the field and the allowed values) before
+anything is written.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from pimbot import envs, learners
+from pimbot.envs.core import InvalidParameter
+
+DEFAULT_EVAL = {  # (eval_period, eval_episodes) by environment family, as the original
+    "escape_room-v0": (100, 10),
+}
+FALLBACK_EVAL = (1000, 10)
+
+
+@dataclasses.dataclass(frozen=True)
+class RunConfig:
+    """One training run: an environment, a learner, and S independent seeds."""
+
+    env_id: str
+    """Registered environment id (see `pimbot envs`)."""
+    env_params: tuple[tuple[str, Any], ...] = ()
+    """Environment parameters as sorted (name, value) pairs."""
+    learner: str = "lio"
+    """Learner name (see `pimbot learners`)."""
+    hparams: tuple[tuple[str, Any], ...] = ()
+    """Overrides of the learner's per-environment default hyperparameters."""
+    seeds: int = 10
+    """Number of independent seeds S (a vmap axis)."""
+    first_seed: int = 0
+    """Seeds are first_seed, …, first_seed + S − 1."""
+    iterations: int = 50_000
+    """Training iterations per seed (one LIO iteration = two episodes)."""
+    eval_period: int | None = None
+    """Iterations between evaluations; None = the environment's default (ER 100, else 1000)."""
+    eval_episodes: int | None = None
+    """Evaluation episodes per evaluation point; None = 10."""
+
+    def resolved_eval(self) -> tuple[int, int]:
+        period, episodes = DEFAULT_EVAL.get(self.env_id, FALLBACK_EVAL)
+        return (
+            self.eval_period if self.eval_period is not None else period,
+            self.eval_episodes if self.eval_episodes is not None else episodes,
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class ResolvedRun:
+    """A validated run: the concrete env, learner definition and learner config."""
+
+    run: RunConfig
+    env: Any
+    learner: learners.LearnerDef
+    learner_config: Any
+    eval_period: int
+    eval_episodes: int
+
+    @property
+    def num_evals(self) -> int:
+        return self.run.iterations // self.eval_period
+
+    def identity(self) -> dict[str, Any]:
+        """Everything that determines the results; a resumed run must match it exactly."""
+        return {
+            "env_id": self.run.env_id,
+            "env_params": env_parameters(self.env),
+            "learner": self.run.learner,
+            "learner_config": dataclasses.asdict(self.learner_config),
+            "seeds": self.run.seeds,
+            "first_seed": self.run.first_seed,
+            "iterations": self.run.iterations,
+            "eval_period": self.eval_period,
+            "eval_episodes": self.eval_episodes,
+        }
+
+
+def env_parameters(env: Any) -> dict[str, Any]:
+    """The init parameters of an env object, defaults included."""
+    return {f.name: getattr(env, f.name) for f in dataclasses.fields(env) if f.init}
+
+
+def _check_positive_int(name: str, value: Any, low: int = 1) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        raise InvalidParameter(f"{name}: must be an integer ≥ {low}, got {value!r}")
+
+
+def resolve(run: RunConfig) -> ResolvedRun:
+    """Validates `run` and builds its env and learner config.
+
+    Raises:
+        InvalidParameter: naming the bad field and the allowed values.
+    """
+    env = envs.make(run.env_id, **dict(run.env_params))
+    learner = learners.get(run.learner)
+    _check_positive_int("seeds", run.seeds)
+    _check_positive_int("first_seed", run.first_seed, low=0)
+    _check_positive_int("iterations", run.iterations)
+    eval_period, eval_episodes = run.resolved_eval()
+    _check_positive_int("eval_period", eval_period)
+    _check_positive_int("eval_episodes", eval_episodes)
+    if run.iterations % eval_period:
+        raise InvalidParameter(
+            f"iterations: must be a multiple of eval_period = {eval_period}, got {run.iterations}"
+        )
+    defaults = learner.default_config(env)
+    fields = {f.name: f for f in dataclasses.fields(defaults)}
+    overrides = {}
+    for name, value in run.hparams:
+        if name not in fields:
+            raise InvalidParameter(
+                f"{name}: not a hyperparameter of {run.learner}; allowed: {', '.join(fields)}"
+            )
+        overrides[name] = coerce_like(name, value, getattr(defaults, name))
+    learner_config = dataclasses.replace(defaults, **overrides)
+    return ResolvedRun(run, env, learner, learner_config, eval_period, eval_episodes)
+
+
+def coerce_like(name: str, value: Any, default: Any) -> Any:
+    """Converts a (possibly string) value to the type of `default`, or fails naming `name`."""
+    try:
+        if isinstance(default, bool):
+            if isinstance(value, str):
+                if value.lower() not in ("true", "false", "1", "0"):
+                    raise ValueError
+                return value.lower() in ("true", "1")
+            return bool(value)
+        if isinstance(default, int):
+            if isinstance(value, str):
+                return int(value)
+            if isinstance(value, float) and not value.is_integer():
+                raise ValueError
+            return int(value)
+        if isinstance(default, float):
+            return float(value)
+        if isinstance(default, tuple):
+            items = value.split(",") if isinstance(value, str) else value
+            return tuple(int(v) for v in items)
+    except (TypeError, ValueError):
+        kind = {bool: "true or false", int: "an integer", float: "a number"}.get(
+            type(default), "a comma-separated list of integers"
+        )
+        raise InvalidParameter(f"{name}: must be {kind}, got {value!r}") from None
+    return value
+
+
+def parse_env_params(env_id: str, pairs: list[str]) -> tuple[tuple[str, Any], ...]:
+    """Parses command-line `name=value` env parameters, typed like their defaults."""
+    return _parse_pairs(pairs, envs.spec(env_id).parameters(), f"parameter of {env_id}")
+
+
+def parse_hparams(learner: str, pairs: list[str]) -> tuple[tuple[str, str], ...]:
+    """Splits `name=value` hyperparameter overrides (typed later against the defaults)."""
+    names = {f.name: None for f in dataclasses.fields(learners.get(learner).config_cls)}
+    return tuple((name, value) for name, value in _split_pairs(pairs, names, learner))
+
+
+def _split_pairs(pairs: list[str], allowed: dict[str, Any], what: str):
+    for pair in pairs:
+        name, sep, value = pair.partition("=")
+        name = name.strip().replace("-", "_")
+        if not sep or not name:
+            raise InvalidParameter(f"{pair}: expected name=value")
+        if name not in allowed:
+            raise InvalidParameter(f"{name}: not a {what}; allowed: {', '.join(allowed) or 'none'}")
+        yield name, value.strip()
+
+
+def _parse_pairs(pairs, defaults, what) -> tuple[tuple[str, Any], ...]:
+    parsed = {
+        name: coerce_like(name, value, defaults[name])
+        for name, value in _split_pairs(pairs, defaults, what)
+    }
+    return tuple(sorted(parsed.items()))

@@ -1,0 +1,297 @@
+"""Training runs: vmapped seeds, `lax.scan` chunks, evaluation, checkpoint/resume.
+
+Seeds are a batch axis (sharded over the available devices — on a CPU the
+host is split into one device per core); a chunk of `evals_per_chunk`
+evaluation periods is one compiled call. After each chunk the metric rows are
+appended and the learner state is checkpointed, so a killed run resumes from
+the last chunk with identical results: all randomness lives in the state.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import flax.serialization
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+import pimbot
+from pimbot.analysis import metrics as curve_metrics
+from pimbot.envs.core import InvalidParameter
+from pimbot.experiment import store
+from pimbot.experiment.config import ResolvedRun, RunConfig, env_parameters, resolve
+from pimbot.experiment.progress import Progress
+
+TARGET_CHUNK_ITERATIONS = 2000
+
+
+class RunDirConflict(InvalidParameter):
+    """The output directory holds a different run."""
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainResult:
+    run_dir: Path
+    summary: dict[str, Any]
+    already_finished: bool
+
+
+def seed_keys(first_seed: int, count: int) -> jax.Array:
+    """Per-seed root keys; seed s always gets the same key, whatever the batch."""
+    return jax.vmap(jax.random.PRNGKey)(jnp.arange(first_seed, first_seed + count))
+
+
+def seed_sharding(num_seeds: int) -> tuple[NamedSharding | None, int]:
+    """Sharding of the seed axis over all devices, and the padded number of seeds."""
+    devices = jax.devices()
+    if len(devices) == 1:
+        return None, num_seeds
+    padded = math.ceil(num_seeds / len(devices)) * len(devices)
+    return NamedSharding(Mesh(np.array(devices), ("seeds",)), PartitionSpec("seeds")), padded
+
+
+def evals_per_chunk(num_evals: int, eval_period: int, target: int = TARGET_CHUNK_ITERATIONS) -> int:
+    """Largest divisor of num_evals whose chunk stays within `target` iterations (≥ 1)."""
+    best = 1
+    for k in range(1, num_evals + 1):
+        if num_evals % k == 0 and k * eval_period <= target:
+            best = k
+    return best
+
+
+def reduce_eval(env, per_episode: dict[str, jax.Array]) -> dict[str, jax.Array]:
+    """Means over evaluation episodes, plus the return ratio and optimal rate where known."""
+    out = {name: value.mean(axis=0) for name, value in per_episode.items()}
+    optimum = getattr(env, "optimal_team_return", None)
+    if optimum:
+        out["return_ratio"] = out["team_return"] / optimum
+        out["optimal_rate"] = (per_episode["team_return"] >= 0.9 * optimum).mean()
+    return out
+
+
+def make_chunk_fn(resolved: ResolvedRun, num_periods: int):
+    """A jitted function running `num_periods` evaluation periods for every seed.
+
+    Returns fn(states [S], eval_roots [S]) -> (states, metrics with leaves [S, num_periods, ...]).
+    """
+    env, learner, cfg = resolved.env, resolved.learner, resolved.learner_config
+
+    def one_seed(state, eval_root):
+        def period(state, _):
+            state, train = jax.lax.scan(
+                lambda s, _: learner.update(s, env, cfg),
+                state,
+                None,
+                length=resolved.eval_period,
+            )
+            eval_key = jax.random.fold_in(eval_root, state.iteration)
+            evaluation = reduce_eval(
+                env, learner.evaluate(eval_key, state, env, cfg, resolved.eval_episodes)
+            )
+            row = {
+                "iteration": state.iteration,
+                "eval": evaluation,
+                "train": {"success": train["success"].mean(), "epsilon": train["epsilon"][-1]},
+            }
+            return state, row
+
+        return jax.lax.scan(period, state, None, length=num_periods)
+
+    return jax.jit(jax.vmap(one_seed))
+
+
+def metric_rows(resolved: ResolvedRun, chunk_metrics, seeds: list[int], perf: dict) -> list[dict]:
+    """Flattens chunk metrics [S, E, ...] into CSV rows, one per seed × evaluation point."""
+    host = jax.device_get(chunk_metrics)
+    n = resolved.env.num_agents
+    rows = []
+    for s, seed in enumerate(seeds):
+        for e in range(host["iteration"].shape[1]):
+            row: dict[str, Any] = {"iteration": int(host["iteration"][s, e]), "seed": seed}
+            for group in ("eval", "train"):
+                for name, value in host[group].items():
+                    value = value[s, e]
+                    if np.ndim(value) == 1 and value.shape[0] == n:
+                        for agent in range(n):
+                            row[f"{group}/{name}/agent_{agent}"] = float(value[agent])
+                    else:
+                        row[f"{group}/{name}"] = float(value)
+            row.update(perf)
+            rows.append(row)
+    return rows
+
+
+def run_metadata(resolved: ResolvedRun) -> dict[str, Any]:
+    return {
+        "identity": resolved.identity(),
+        "run_config": dataclasses.asdict(resolved.run),
+        "env": {
+            "id": resolved.run.env_id,
+            "version": resolved.run.env_id.rsplit("-v", 1)[-1],
+            "params": env_parameters(resolved.env),
+            "num_agents": resolved.env.num_agents,
+            "optimal_team_return": getattr(resolved.env, "optimal_team_return", None),
+        },
+        "pimbot_version": pimbot.__version__,
+        "git_commit": store.git_commit(),
+        "jax_version": jax.__version__,
+        "jax_backend": jax.default_backend(),
+        "devices": [str(d) for d in jax.devices()],
+    }
+
+
+def check_run_dir(run_dir: Path, resolved: ResolvedRun) -> None:
+    """Fails if `run_dir` exists and holds something other than this run."""
+    if not run_dir.exists():
+        return
+    if not run_dir.is_dir():
+        raise RunDirConflict(f"out: {run_dir} exists and is not a directory")
+    config_path = run_dir / store.CONFIG
+    if not config_path.exists():
+        if any(run_dir.iterdir()):
+            raise RunDirConflict(
+                f"out: {run_dir} is a non-empty directory without a pimbot run; "
+                "choose a new or empty directory"
+            )
+        return
+    saved = store.read_json(config_path).get("identity")
+    wanted = json.loads(json.dumps(resolved.identity(), default=str))
+    if saved != wanted:
+        keys = sorted(set(saved or {}) | set(wanted))
+        diff = [k for k in keys if (saved or {}).get(k) != wanted.get(k)]
+        raise RunDirConflict(
+            f"out: {run_dir} holds a different run (differs in: {', '.join(diff)}); "
+            "choose another directory or repeat the original command to resume it"
+        )
+
+
+def train(
+    run: RunConfig, run_dir: str | Path, *, progress: bool = True, checkpoint: bool = True
+) -> TrainResult:
+    """Trains (or resumes, or reports finished) one run into `run_dir`."""
+    resolved = resolve(run)
+    run_dir = Path(run_dir)
+    check_run_dir(run_dir, resolved)
+    if (run_dir / store.SUMMARY).exists():
+        return TrainResult(run_dir, store.read_json(run_dir / store.SUMMARY), True)
+
+    run_dir.mkdir(parents=True, exist_ok=True)
+    if not (run_dir / store.CONFIG).exists():
+        store.write_json(run_dir / store.CONFIG, run_metadata(resolved))
+
+    sharding, padded = seed_sharding(run.seeds)
+    seeds = list(range(run.first_seed, run.first_seed + run.seeds))
+    keys = seed_keys(run.first_seed, padded)
+    init_keys = jax.vmap(lambda k: jax.random.fold_in(k, 0))(keys)
+    eval_roots = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
+    env, learner, cfg = resolved.env, resolved.learner, resolved.learner_config
+    states = jax.jit(jax.vmap(lambda k: learner.init(k, env, cfg)))(init_keys)
+
+    done = 0
+    saved = store.load_checkpoint(run_dir)
+    if saved is not None:
+        state_bytes, done = saved
+        states = flax.serialization.from_bytes(states, state_bytes)
+    store.truncate_rows(run_dir, done)
+    if sharding is not None:
+        states = jax.device_put(states, sharding)
+        eval_roots = jax.device_put(eval_roots, sharding)
+
+    period = resolved.eval_period
+    per_chunk = evals_per_chunk(resolved.num_evals, period)
+    t0 = time.perf_counter()
+    chunk_fn = make_chunk_fn(resolved, per_chunk).lower(states, eval_roots).compile()
+    compile_s = time.perf_counter() - t0
+
+    title = f"{run.learner} on {run.env_id} ({run.seeds} seeds)"
+    bar = Progress(title, run.iterations, done, enabled=progress)
+    columns: list[str] | None = None
+    try:
+        while done < run.iterations:
+            t_chunk = time.perf_counter()
+            states, chunk_metrics = chunk_fn(states, eval_roots)
+            jax.block_until_ready(states)
+            chunk_s = time.perf_counter() - t_chunk
+            done += per_chunk * period
+            perf = {
+                "perf/iters_per_s": per_chunk * period / chunk_s,
+                "perf/seed_iters_per_s": per_chunk * period * run.seeds / chunk_s,
+            }
+            rows = metric_rows(resolved, chunk_metrics, seeds, perf)
+            columns = columns or list(rows[0])
+            store.append_rows(run_dir, columns, rows)
+            if checkpoint:
+                store.save_checkpoint(run_dir, flax.serialization.to_bytes(states), done)
+            success = float(np.mean([r["eval/success"] for r in rows[-run.seeds :]]))
+            bar.update(done, success)
+    finally:
+        bar.close()
+
+    summary = summarize(run_dir)
+    summary["compile_s"] = compile_s
+    summary["wall_s_this_session"] = time.perf_counter() - t0
+    store.write_json(run_dir / store.SUMMARY, summary)
+    return TrainResult(run_dir, summary, False)
+
+
+def summarize(run_dir: str | Path) -> dict[str, Any]:
+    """Final metrics (mean of the last evaluation points, 95 % CI) and convergence, from files."""
+    run_dir = Path(run_dir)
+    rows = store.read_metrics(run_dir)
+    config = store.read_json(run_dir / store.CONFIG)
+    seeds = sorted({int(r["seed"]) for r in rows})
+    by_seed = {s: [r for r in rows if int(r["seed"]) == s] for s in seeds}
+    columns = [c for c in rows[0] if c.startswith("eval/")] if rows else []
+    final: dict[str, Any] = {}
+    for column in columns:
+        per_seed = [
+            curve_metrics.final_value(np.array([float(r[column]) for r in by_seed[s]]))
+            for s in seeds
+        ]
+        lo, hi = curve_metrics.bootstrap_ci(np.array(per_seed))
+        final[column] = {"mean": float(np.mean(per_seed)), "ci95": [lo, hi], "per_seed": per_seed}
+    curve = "eval/return_ratio" if "eval/return_ratio" in columns else "eval/success"
+    converged, first = [], []
+    for s in seeds:
+        its = np.array([int(r["iteration"]) for r in by_seed[s]])
+        values = np.array([float(r[curve]) for r in by_seed[s]])
+        c, f = curve_metrics.convergence_point(its, values)
+        converged.append(c)
+        first.append(f)
+    reached = [c for c in converged if c is not None]
+    # Seeds that never converge count as +inf for the median.
+    ranked = np.array([c if c is not None else np.inf for c in converged], dtype=float)
+    median = float(np.quantile(ranked, 0.5, method="lower")) if ranked.size else None
+    q25, q75 = (
+        np.quantile(ranked, [0.25, 0.75], method="nearest").tolist()
+        if ranked.size
+        else [None, None]
+    )
+    perf = [float(r["perf/iters_per_s"]) for r in rows if "perf/iters_per_s" in r]
+    return {
+        "finished": True,
+        "env_id": config["env"]["id"],
+        "learner": config["identity"]["learner"],
+        "seeds": seeds,
+        "iterations": config["identity"]["iterations"],
+        "final_window_evals": curve_metrics.FINAL_WINDOW,
+        "final": final,
+        "convergence": {
+            "curve": curve,
+            "threshold": curve_metrics.CONVERGENCE_THRESHOLD,
+            "smoothing_window_evals": curve_metrics.SMOOTHING_WINDOW,
+            "per_seed": converged,
+            "first_crossing_per_seed": first,
+            "converged_seeds": len(reached),
+            "median": None if median is None or math.isinf(median) else median,
+            "iqr": [None if q is None or math.isinf(q) else q for q in (q25, q75)],
+        },
+        "iters_per_s_mean": float(np.mean(perf)) if perf else None,
+    }

@@ -1,0 +1,60 @@
+"""Learners: one module each, with pure `init` / `update` / `evaluate` and a frozen config.
+
+`get(name)` returns the learner's definition; `registered()` lists names.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any
+
+from pimbot.envs.core import InvalidParameter
+from pimbot.learners import lio, pg
+
+
+@dataclasses.dataclass(frozen=True)
+class LearnerDef:
+    """What the runner needs to train a learner."""
+
+    name: str
+    config_cls: type
+    default_config: Callable[[Any], Any]
+    init: Callable
+    update: Callable
+    evaluate: Callable
+    description: str
+
+
+_LEARNERS = {
+    "pg": LearnerDef(
+        "pg",
+        pg.PGConfig,
+        pg.default_config,
+        pg.init,
+        pg.update,
+        pg.evaluate,
+        "independent REINFORCE on environment reward (no incentives)",
+    ),
+    "lio": LearnerDef(
+        "lio",
+        lio.LIOConfig,
+        lio.default_config,
+        lio.init,
+        lio.update,
+        lio.evaluate,
+        "LIO: learned incentives trained through the recipients' policy updates",
+    ),
+}
+
+
+def registered() -> list[str]:
+    return sorted(_LEARNERS)
+
+
+def get(name: str) -> LearnerDef:
+    if name not in _LEARNERS:
+        raise InvalidParameter(
+            f"learner: unknown learner {name!r}; allowed: {', '.join(registered())}"
+        )
+    return _LEARNERS[name]

@@ -1,0 +1,237 @@
+"""LIO — learning to incentivize other learners (Yang et al., NeurIPS 2020).
+
+One iteration, per seed and for all agents at once (spec/lio.md):
+  1. play τ with the current policies θ and incentive functions η;
+  2. every recipient j takes a policy-gradient step on env + received
+     incentives: θ̂_j(η) = θ_j + β∇_θj[Σ_t log π(a_t|o_t) G_t + c_ent·H];
+  3. play τ̂ with θ̂;
+  4. every giver i ascends its *env* return on τ̂ through the recipients'
+     updates: ∇_ηi Σ_{j≠i} Σ_t log π_θ̂j(η)(â_t^j|ô_t^j) Ĝ_t^{i,env} — `jax.grad`
+     of that surrogate at θ̂(η), nothing hand-derived — plus a separate cost
+     step on the discounted sigmoid outputs it gave on τ;
+  5. θ ← θ̂.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from pimbot import nets
+from pimbot.envs.core import Env
+from pimbot.learners.pg import act_fn, epsilon_at, policy_step
+from pimbot.rollout import Trajectory, discounted_returns, episode_metrics, received, rollout
+
+
+@dataclasses.dataclass(frozen=True)
+class LIOConfig:
+    """LIO hyperparameters (defaults: the original Escape Room config)."""
+
+    policy_hidden: tuple[int, ...] = (64, 32)
+    """Hidden layer widths of the policy MLP."""
+    incentive_hidden: tuple[int, ...] = (64, 16)
+    """Hidden layer widths of the incentive MLP."""
+    lr_policy: float = 1e-4
+    """SGD learning rate β of the policy step."""
+    lr_incentive: float = 1e-3
+    """Adam learning rate of the incentive (meta-gradient) step."""
+    lr_cost: float = 1e-4
+    """Adam learning rate of the separate cost step; 0 disables the cost."""
+    incentive_max: float = 2.0
+    """R_max: incentives are sigmoid outputs × R_max."""
+    entropy_coef: float = 0.01
+    """Weight of the entropy bonus in the policy step."""
+    gamma: float = 0.99
+    """Discount factor."""
+    epsilon_start: float = 0.5
+    """Initial exploration weight ε."""
+    epsilon_end: float = 0.1
+    """Final ε."""
+    epsilon_decay_iters: int = 1000
+    """Iterations over which ε decays linearly."""
+
+
+def default_config(env: Env) -> LIOConfig:
+    """The original per-environment defaults: ER column for Escape Room, IPD column elsewhere.
+
+    The original IPD config has no incentive cost (reg_coeff 0): lr_cost = 0 there.
+    """
+    if env.incentive_obs:  # Escape Room
+        return LIOConfig()
+    return LIOConfig(
+        policy_hidden=(16, 8),
+        incentive_hidden=(16, 8),
+        lr_policy=1e-3,
+        lr_incentive=1e-3,
+        lr_cost=0.0,
+        incentive_max=3.0,
+        entropy_coef=0.1,
+        epsilon_start=1.0,
+        epsilon_end=0.01,
+        epsilon_decay_iters=5000,
+    )
+
+
+@struct.dataclass
+class LIOState:
+    policy: dict  # stacked policy parameters θ, leaves [N, ...]
+    incentive: dict  # stacked incentive parameters η, leaves [N, ...]
+    incentive_opt: optax.OptState  # Adam state of the meta-gradient step
+    cost_opt: optax.OptState  # Adam state of the cost step
+    key: jax.Array
+    iteration: jax.Array  # int32 []
+
+
+def _modules(env: Env, cfg: LIOConfig) -> tuple[nets.MLP, nets.MLP]:
+    return (
+        nets.policy_module(cfg.policy_hidden, env.num_actions),
+        nets.incentive_module(cfg.incentive_hidden, env.num_agents),
+    )
+
+
+def incentive_input(obs: jax.Array, actions: jax.Array, num_actions: int) -> jax.Array:
+    """Each giver's incentive-net input: own observation + one-hot actions of the others.
+
+    Args:
+        obs: [..., N, obs_dim]; actions: int [..., N].
+    Returns:
+        [..., N, obs_dim + (N−1)·num_actions].
+    """
+    n = actions.shape[-1]
+    others = jnp.array([[j for j in range(n) if j != i] for i in range(n)])  # [N, N-1]
+    one_hot = jax.nn.one_hot(actions, num_actions)  # [..., N, A]
+    others_one_hot = one_hot[..., others, :]  # [..., N, N-1, A]
+    flat = others_one_hot.reshape(others_one_hot.shape[:-2] + (-1,))
+    return jnp.concatenate([obs, flat], axis=-1)
+
+
+def sigmoid_outputs(module: nets.MLP, incentive, obs, actions, num_actions) -> jax.Array:
+    """Raw sigmoid outputs with the giver's own entry masked: [T, N, N] -> (giver, recipient)."""
+    x = incentive_input(obs, actions, num_actions)  # [T, N, D]
+    out = jax.nn.sigmoid(jax.vmap(module.apply, in_axes=(0, 1), out_axes=1)(incentive, x))
+    return out * (1.0 - jnp.eye(actions.shape[-1]))
+
+
+def give_fn(module: nets.MLP, incentive, num_actions: int, incentive_max: float):
+    """A rollout `give` function emitting every giver's incentives."""
+
+    def give(obs, actions):
+        out = sigmoid_outputs(module, incentive, obs[None], actions[None], num_actions)[0]
+        return incentive_max * out
+
+    return give
+
+
+def init(key: jax.Array, env: Env, cfg: LIOConfig) -> LIOState:
+    policy_module, incentive_module = _modules(env, cfg)
+    policy_key, incentive_key, key = jax.random.split(key, 3)
+    n = env.num_agents
+    policy = nets.init_stacked(policy_module, policy_key, n, env.obs_dim)
+    in_dim = env.obs_dim + (n - 1) * env.num_actions
+    incentive = nets.init_stacked(incentive_module, incentive_key, n, in_dim)
+    return LIOState(
+        policy=policy,
+        incentive=incentive,
+        incentive_opt=optax.adam(cfg.lr_incentive).init(incentive),
+        cost_opt=optax.adam(cfg.lr_cost).init(incentive),
+        key=key,
+        iteration=jnp.zeros((), jnp.int32),
+    )
+
+
+def recipient_update(env, cfg, policy, incentive, traj: Trajectory, epsilon):
+    """θ̂(η): every agent's policy step on env reward + incentives received on `traj`.
+
+    The incentives are recomputed from η on the recorded observations and
+    actions, so θ̂ is a differentiable function of η.
+    """
+    policy_module, incentive_module = _modules(env, cfg)
+    given = cfg.incentive_max * sigmoid_outputs(
+        incentive_module, incentive, traj.obs, traj.actions, env.num_actions
+    )
+    rewards = traj.env_rewards + received(given) * traj.valid[:, None]
+    return policy_step(
+        policy_module, policy, traj, rewards, epsilon, cfg.lr_policy, cfg.gamma, cfg.entropy_coef
+    )
+
+
+def giver_objective(
+    own_incentive, giver: jax.Array, env, cfg, policy, incentive, traj, epsilon, new_traj
+) -> jax.Array:
+    """Giver i's surrogate: Σ_{j≠i} Σ_t log π_θ̂j(η)(â_t^j|ô_t^j)·Ĝ_t^{i,env} (plain softmax).
+
+    Only giver i's parameters are the argument; the others' η are held fixed.
+    """
+    policy_module, _ = _modules(env, cfg)
+    eta = jax.tree.map(lambda stacked, own: stacked.at[giver].set(own), incentive, own_incentive)
+    new_policy = recipient_update(env, cfg, policy, eta, traj, epsilon)
+    logits = jax.vmap(policy_module.apply, in_axes=(0, 1), out_axes=1)(new_policy, new_traj.obs)
+    log_probs = jax.nn.log_softmax(logits)  # [T, N, A]
+    taken = jnp.take_along_axis(log_probs, new_traj.actions[..., None], axis=-1)[..., 0]
+    env_returns = discounted_returns(new_traj.env_rewards[:, giver], cfg.gamma)  # [T]
+    recipients = (jnp.arange(env.num_agents) != giver).astype(jnp.float32)
+    mask = new_traj.valid.astype(jnp.float32)
+    return jnp.sum(taken * recipients[None, :] * (mask * env_returns)[:, None])
+
+
+def incentive_cost(incentive, env, cfg, traj: Trajectory) -> jax.Array:
+    """Σ_i Σ_t γ^t Σ_{j≠i} sigmoid_i^j on τ (raw outputs, not × R_max), invalid steps masked."""
+    _, incentive_module = _modules(env, cfg)
+    out = sigmoid_outputs(incentive_module, incentive, traj.obs, traj.actions, env.num_actions)
+    discount = cfg.gamma ** jnp.arange(traj.valid.shape[0]) * traj.valid
+    return jnp.sum(discount[:, None, None] * out)
+
+
+def update(state: LIOState, env: Env, cfg: LIOConfig) -> tuple[LIOState, dict[str, jax.Array]]:
+    """One LIO iteration (two rollouts)."""
+    policy_module, incentive_module = _modules(env, cfg)
+    key, key_first, key_second = jax.random.split(state.key, 3)
+    epsilon = epsilon_at(
+        state.iteration, cfg.epsilon_start, cfg.epsilon_end, cfg.epsilon_decay_iters
+    )
+    give = give_fn(incentive_module, state.incentive, env.num_actions, cfg.incentive_max)
+
+    traj = rollout(env, key_first, act_fn(policy_module, state.policy, epsilon), give)
+    new_policy = recipient_update(env, cfg, state.policy, state.incentive, traj, epsilon)
+    new_traj = rollout(env, key_second, act_fn(policy_module, new_policy, epsilon), give)
+
+    def objective(own_incentive, giver):
+        return giver_objective(
+            own_incentive, giver, env, cfg, state.policy, state.incentive, traj, epsilon, new_traj
+        )
+
+    meta_grad = jax.vmap(jax.grad(objective))(state.incentive, jnp.arange(env.num_agents))
+    # Ascend the surrogate: Adam minimises, so hand it the negated gradient.
+    meta_updates, incentive_opt = optax.adam(cfg.lr_incentive).update(
+        jax.tree.map(jnp.negative, meta_grad), state.incentive_opt
+    )
+    incentive = optax.apply_updates(state.incentive, meta_updates)
+    cost_opt = state.cost_opt
+    if cfg.lr_cost > 0:
+        cost_grad = jax.grad(incentive_cost)(state.incentive, env, cfg, traj)
+        cost_updates, cost_opt = optax.adam(cfg.lr_cost).update(cost_grad, state.cost_opt)
+        incentive = optax.apply_updates(incentive, cost_updates)
+
+    metrics = {"epsilon": epsilon, "success": episode_metrics(env, traj)["success"]}
+    new_state = LIOState(
+        policy=new_policy,
+        incentive=incentive,
+        incentive_opt=incentive_opt,
+        cost_opt=cost_opt,
+        key=key,
+        iteration=state.iteration + 1,
+    )
+    return new_state, metrics
+
+
+def evaluate(key: jax.Array, state: LIOState, env: Env, cfg: LIOConfig, episodes: int):
+    """Per-episode metrics [episodes, ...] of evaluation episodes (ε = 0, actions sampled)."""
+    policy_module, incentive_module = _modules(env, cfg)
+    act = act_fn(policy_module, state.policy, jnp.float32(0.0))
+    give = give_fn(incentive_module, state.incentive, env.num_actions, cfg.incentive_max)
+    trajs = jax.vmap(lambda k: rollout(env, k, act, give))(jax.random.split(key, episodes))
+    return jax.vmap(lambda t: episode_metrics(env, t))(trajs)

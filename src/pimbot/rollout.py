@@ -1,0 +1,122 @@
+"""One episode as a `lax.scan`, with incentives, and the per-episode metrics.
+
+The scan always runs `env.max_steps` steps; steps after the episode ended are
+marked invalid (`valid = False`) and are masked out of every loss and metric,
+so variable-length episodes keep a static shape.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from pimbot.envs.core import Env
+
+# act(key, obs [N, obs_dim]) -> actions int32 [N]
+ActFn = Callable[[jax.Array, jax.Array], jax.Array]
+# give(obs [N, obs_dim], actions [N]) -> incentives [N giver, N recipient], zero diagonal
+GiveFn = Callable[[jax.Array, jax.Array], jax.Array]
+
+
+@struct.dataclass
+class Trajectory:
+    """One episode, time-major. T = env.max_steps."""
+
+    obs: jax.Array  # float32 [T, N, obs_dim], incentive slots filled
+    actions: jax.Array  # int32 [T, N]
+    env_rewards: jax.Array  # float32 [T, N], zero on invalid steps
+    incentives: jax.Array  # float32 [T, N, N] (giver, recipient), zero on invalid steps
+    valid: jax.Array  # bool [T], the step took place
+    success: jax.Array  # bool [T], info["success"] of the step
+
+
+def fill_incentive_obs(env: Env, obs: jax.Array, given: jax.Array) -> jax.Array:
+    """Writes the cumulative incentives each agent has given into its observation.
+
+    Args:
+        obs: [N, obs_dim] as returned by the env (incentive slots zero).
+        given: [N, N] cumulative incentives, given[i, j] from i to j.
+    Returns:
+        obs with row i's last N-1 entries = given[i, j] for j != i in id order
+        (unchanged when the env has no incentive slots).
+    """
+    if not env.incentive_obs:
+        return obs
+    n = env.num_agents
+    others = jnp.array([[j for j in range(n) if j != i] for i in range(n)])
+    given_to_others = jnp.take_along_axis(given, others, axis=1)  # [N, N-1]
+    return obs.at[:, -(n - 1) :].set(given_to_others)
+
+
+def rollout(env: Env, key: jax.Array, act: ActFn, give: GiveFn | None = None) -> Trajectory:
+    """Plays one episode from `env.reset`.
+
+    Args:
+        env: the environment.
+        key: PRNG key for this episode.
+        act: samples the joint action from the (filled) observations.
+        give: the incentives emitted after the joint action; None for no incentives.
+    """
+    n = env.num_agents
+    reset_key, steps_key = jax.random.split(key)
+    obs, state = env.reset(reset_key)
+
+    def body(carry, step_key):
+        state, obs, given, alive = carry
+        act_key, env_key = jax.random.split(step_key)
+        obs = fill_incentive_obs(env, obs, given)
+        actions = act(act_key, obs).astype(jnp.int32)
+        incentives = jnp.zeros((n, n), jnp.float32) if give is None else give(obs, actions) * alive
+        next_obs, next_state, rewards, done, info = env.step(env_key, state, actions)
+        step = Trajectory(
+            obs=obs,
+            actions=actions,
+            env_rewards=rewards * alive,
+            incentives=incentives,
+            valid=alive,
+            success=info["success"] & alive,
+        )
+        return (next_state, next_obs, given + incentives, alive & ~done), step
+
+    init = (state, obs, jnp.zeros((n, n), jnp.float32), jnp.array(True))
+    _, traj = jax.lax.scan(body, init, jax.random.split(steps_key, env.max_steps))
+    return traj
+
+
+def discounted_returns(rewards: jax.Array, gamma: float) -> jax.Array:
+    """Reward-to-go G_t = Σ_{k ≥ t} γ^(k−t) r_k along axis 0.
+
+    Args:
+        rewards: [T, ...] (already zero on invalid steps).
+    """
+    steps = rewards.shape[0]
+    t = jnp.arange(steps)
+    exponent = t[None, :] - t[:, None]
+    discount = jnp.where(exponent >= 0, gamma ** jnp.maximum(exponent, 0), 0.0)  # [T, T]
+    return jnp.tensordot(discount.astype(rewards.dtype), rewards, axes=1)
+
+
+def received(incentives: jax.Array) -> jax.Array:
+    """Incentives each agent receives: [..., N giver, N recipient] -> [..., N]."""
+    return incentives.sum(axis=-2)
+
+
+def episode_metrics(env: Env, traj: Trajectory) -> dict[str, jax.Array]:
+    """Per-episode metrics (see spec/experiments.md)."""
+    env_return = traj.env_rewards.sum(axis=0)  # [N]
+    got = received(traj.incentives).sum(axis=0)  # [N]
+    given = traj.incentives.sum(axis=(0, 2))  # [N]
+    steps = traj.valid.sum()
+    success = env.episode_success(traj.success.sum(), steps, env_return)
+    return {
+        "success": success,
+        "steps": steps.astype(jnp.float32),
+        "team_return": env_return.sum(),
+        "return_env": env_return,
+        "received": got,
+        "given": given,
+        "return_total": env_return + got - given,
+    }

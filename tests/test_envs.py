@@ -1,0 +1,406 @@
+"""Environment tests: conformance over the registry, golden action sequences, bad parameters."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from pimbot import envs
+from pimbot.envs import EscapeRoom, InvalidParameter, MatrixGame, StagHunt, StagHuntMatrix
+from pimbot.envs.escape_room import DOOR, LEVER, START
+from pimbot.envs.matrix_games import COOPERATE, DEFECT, HARE, IPD_PAYOFF, STAG
+from pimbot.envs.stag_hunt import DOWN, LEFT, RIGHT, STAY, UP
+
+KEY = jax.random.key(0)
+
+
+@functools.cache
+def _compiled(env):
+    """Jitted reset and step, compiled once per distinct env in this module."""
+    return jax.jit(env.reset), jax.jit(env.step)
+
+
+@dataclasses.dataclass
+class Step:
+    obs: np.ndarray
+    rewards: list[float]
+    done: bool
+    info: dict
+    state: object
+
+
+def play(env, joint_actions, state=None, key=KEY):
+    """Steps `env` from a reset (or from `state`) through `joint_actions`; one Step per action."""
+    reset, step = _compiled(env)
+    if state is None:
+        _, state = reset(key)
+    steps = []
+    for t, actions in enumerate(joint_actions):
+        obs, state, rewards, done, info = step(
+            jax.random.fold_in(key, t), state, jnp.asarray(actions, jnp.int32)
+        )
+        info = {name: np.asarray(value).item() for name, value in info.items()}
+        steps.append(Step(np.asarray(obs), np.asarray(rewards).tolist(), bool(done), info, state))
+    return steps
+
+
+# --- conformance -------------------------------------------------------------------------
+
+
+def test_registry_lists_every_env():
+    assert envs.registered() == [
+        "escape_room-v0",
+        "ipd-v0",
+        "stag_hunt-v0",
+        "stag_hunt_matrix-v0",
+    ]
+    for env_id in envs.registered():
+        assert envs.spec(env_id).description
+    assert envs.spec("ipd-v0").parameters() == {"n_players": 2, "max_steps": 5}
+    assert envs.spec("stag_hunt_matrix-v0").parameters() == {"n_players": 2, "max_steps": 10}
+    assert envs.spec("stag_hunt-v0").parameters() == {
+        "n_players": 2,
+        "grid_size": 5,
+        "max_steps": 50,
+        "stag_move_prob": 0.5,
+    }
+
+
+@pytest.mark.parametrize("env_id", envs.registered())
+def test_check_env_registered(env_id):
+    envs.check_env(envs.make(env_id))
+
+
+@pytest.mark.parametrize(
+    "params",
+    [
+        {"n_agents": 4, "min_at_lever": 2},
+        {"n_agents": 4, "min_at_lever": 3},
+        {"randomize_start": True},
+    ],
+)
+def test_check_env_escape_room_variants(params):
+    envs.check_env(envs.make("escape_room-v0", **params))
+
+
+def test_check_env_three_player_matrix_game():
+    envs.check_env(envs.make("ipd-v0", n_players=3))
+
+
+class _TooTightBounds(EscapeRoom):
+    def obs_bounds(self):
+        return 0.0, 0.5
+
+
+class _ClaimsDeterministic(EscapeRoom):
+    @property
+    def stochastic(self):
+        return False
+
+
+class _OneReward(EscapeRoom):
+    def step(self, key, state, actions):
+        obs, state, rewards, done, info = super().step(key, state, actions)
+        return obs, state, rewards[:1], done, info
+
+
+def test_check_env_catches_wrong_reward_shape():
+    with pytest.raises(AssertionError, match=r"rewards must have shape \(2,\), got \(1,\)"):
+        envs.check_env(_OneReward())
+
+
+def test_check_env_catches_observations_outside_bounds():
+    with pytest.raises(AssertionError, match="obs_bounds"):
+        envs.check_env(_TooTightBounds())
+
+
+def test_check_env_catches_undeclared_randomness():
+    with pytest.raises(AssertionError, match="stochastic is False"):
+        envs.check_env(_ClaimsDeterministic(randomize_start=True))
+
+
+# --- Escape Room golden tests ------------------------------------------------------------
+
+
+def test_escape_room_reset_observation():
+    obs, _ = _compiled(EscapeRoom())[0](KEY)
+    np.testing.assert_array_equal(obs, [[0, 1, 0, 0, 1, 0, 0]] * 2)
+
+
+def test_escape_room_both_stay_at_start():
+    (s,) = play(EscapeRoom(), [(START, START)])
+    assert s.rewards == [0.0, 0.0]
+    assert not s.info["door_open"] and not s.done and not s.info["success"]
+
+
+def test_escape_room_lever_and_door_from_start_succeeds():
+    (s,) = play(EscapeRoom(), [(LEVER, DOOR)])
+    assert s.rewards == [-1.0, 10.0]
+    assert s.info["door_open"] and s.done and s.info["success"]
+
+
+def test_escape_room_door_stays_closed_without_lever():
+    first, second = play(EscapeRoom(), [(DOOR, DOOR), (DOOR, DOOR)])
+    assert first.rewards == [-1.0, -1.0]
+    assert not first.info["door_open"] and not first.done
+    assert second.rewards == [0.0, 0.0]  # staying at the door costs nothing
+    assert not second.info["door_open"] and not second.done
+
+
+def test_escape_room_staying_at_lever_keeps_door_open_for_free():
+    first, second = play(EscapeRoom(), [(LEVER, START), (LEVER, DOOR)])
+    assert first.rewards == [-1.0, 0.0]
+    assert first.info["door_open"] and not first.done  # open, but nobody went through
+    assert second.rewards == [0.0, 10.0]
+    assert second.info["door_open"] and second.done and second.info["success"]
+
+
+def test_escape_room_four_two_pays_door_goers():
+    (s,) = play(EscapeRoom(4, 2), [(LEVER, LEVER, DOOR, DOOR)])
+    assert s.rewards == [-1.0, -1.0, 10.0, 10.0]
+    assert s.info["door_open"] and s.done and s.info["success"]
+
+
+def test_escape_room_four_three_needs_three_at_lever():
+    (s,) = play(EscapeRoom(4, 3), [(LEVER, LEVER, DOOR, DOOR)])
+    assert s.rewards == [-1.0] * 4
+    assert not s.info["door_open"] and not s.done
+
+
+@pytest.mark.parametrize(("n", "m"), [(2, 1), (3, 2), (4, 2), (4, 3)])
+def test_escape_room_one_step_plan_reaches_optimal_team_return(n, m):
+    env = EscapeRoom(n, m)
+    (s,) = play(env, [(LEVER,) * m + (DOOR,) * (n - m)])
+    assert s.done and s.info["success"]
+    assert sum(s.rewards) == env.optimal_team_return
+
+
+def test_escape_room_truncates_at_max_steps_without_success():
+    env = EscapeRoom()
+    steps = play(env, [(START, START)] * env.max_steps)
+    assert [s.done for s in steps] == [False] * 4 + [True]
+    assert not any(s.info["success"] for s in steps)
+    assert env.episode_success(jnp.int32(0), jnp.int32(5), jnp.zeros(2)) == 0.0
+    assert env.episode_success(jnp.int32(1), jnp.int32(2), jnp.zeros(2)) == 1.0
+
+
+def test_escape_room_observation_order():
+    (s,) = play(EscapeRoom(3, 2), [(LEVER, DOOR, START)])
+    assert s.rewards == [-1.0, -1.0, 0.0]  # one at the lever is not enough
+    # Agent 1: own position (door), agent 0 (lever), agent 2 (start), two incentive slots.
+    np.testing.assert_array_equal(s.obs[1], [0, 0, 1, 1, 0, 0, 0, 1, 0, 0, 0])
+
+
+# --- matrix games golden tests -----------------------------------------------------------
+
+
+@pytest.mark.parametrize(("a0", "a1"), [(0, 0), (0, 1), (1, 0), (1, 1)])
+def test_ipd_two_player_payoffs_and_observation(a0, a1):
+    expected = {
+        (0, 0): [-1.0, -1.0],
+        (0, 1): [-3.0, 0.0],
+        (1, 0): [0.0, -3.0],
+        (1, 1): [-2.0, -2.0],
+    }
+    env = envs.make("ipd-v0")
+    (s,) = play(env, [(a0, a1)])
+    assert s.rewards == expected[(a0, a1)]
+    assert s.rewards[0] == IPD_PAYOFF[a0, a1]
+    np.testing.assert_array_equal(s.obs, [np.eye(5)[2 * a0 + a1]] * 2)
+    assert s.info["success"] == (a0 == a1 == COOPERATE)
+
+
+def test_ipd_two_player_reset_observation():
+    obs, _ = _compiled(envs.make("ipd-v0"))[0](KEY)
+    np.testing.assert_array_equal(obs, [[0, 0, 0, 0, 1]] * 2)
+
+
+def test_ipd_three_players_mean_pairwise_payoff():
+    env = envs.make("ipd-v0", n_players=3)
+    obs, _ = _compiled(env)[0](KEY)
+    np.testing.assert_array_equal(obs, [[0, 0, 0, 0, 0, 0, 1]] * 3)
+    ccd, ddd, ccc = play(
+        env,
+        [(COOPERATE, COOPERATE, DEFECT), (DEFECT, DEFECT, DEFECT), (COOPERATE,) * 3],
+    )
+    assert ccd.rewards == [-2.0, -2.0, 0.0]  # mean(-1, -3), mean(-1, -3), mean(0, 0)
+    np.testing.assert_array_equal(ccd.obs, [[1, 0, 1, 0, 0, 1, 0]] * 3)
+    assert not ccd.info["success"]
+    assert ddd.rewards == [-2.0] * 3
+    assert ccc.rewards == [-1.0] * 3 and ccc.info["success"]
+
+
+def test_ipd_runs_exactly_max_steps_and_scores_cooperation_rate():
+    env = envs.make("ipd-v0")
+    steps = play(env, [(COOPERATE, COOPERATE)] * 3 + [(COOPERATE, DEFECT)] * 2)
+    assert [s.done for s in steps] == [False] * 4 + [True]
+    assert sum(s.info["success"] for s in steps) == 3
+    assert env.idle_action == DEFECT and not env.incentive_obs
+    assert env.episode_success(jnp.int32(3), jnp.int32(5), jnp.zeros(2)) == pytest.approx(0.6)
+
+
+def test_stag_hunt_matrix_three_players():
+    env = envs.make("stag_hunt_matrix-v0", n_players=3)
+    all_stag, two_stag, all_hare = play(env, [(STAG,) * 3, (STAG, STAG, HARE), (HARE,) * 3])
+    assert all_stag.rewards == [5.0] * 3 and all_stag.info["success"]
+    assert two_stag.rewards == [0.0, 0.0, 1.0] and not two_stag.info["success"]
+    np.testing.assert_array_equal(two_stag.obs, [[1, 0, 1, 0, 0, 1, 0]] * 3)
+    assert all_hare.rewards == [1.0] * 3
+    assert env.idle_action == HARE
+
+
+def test_stag_hunt_matrix_two_players_observation_and_horizon():
+    env = envs.make("stag_hunt_matrix-v0")
+    steps = play(env, [(STAG, HARE)] * env.max_steps)
+    assert steps[0].rewards == [0.0, 1.0]
+    np.testing.assert_array_equal(steps[0].obs, [[1, 0, 0, 1, 0]] * 2)
+    assert [s.done for s in steps] == [False] * 9 + [True]
+
+
+def test_matrix_games_are_one_class_with_payoff_data():
+    for env_id in ("ipd-v0", "stag_hunt_matrix-v0"):
+        env = envs.make(env_id, n_players=4)
+        assert isinstance(env, MatrixGame) and type(env).step is MatrixGame.step
+        assert env.payoffs.shape == (2, 4)
+    np.testing.assert_array_equal(
+        StagHuntMatrix(n_players=4).payoffs, MatrixGame("stag_hunt", n_players=4).payoffs
+    )
+
+
+# --- Stag Hunt gridworld golden tests ----------------------------------------------------
+
+STILL_STAG = StagHunt(stag_move_prob=0.0)
+
+
+def _hand_state(env, hunters, stag, hares):
+    _, state = _compiled(env)[0](KEY)
+    return state.replace(
+        hunters=jnp.asarray(hunters, jnp.int32),
+        stag=jnp.asarray(stag, jnp.int32),
+        hares=jnp.asarray(hares, jnp.int32),
+    )
+
+
+def _after_one_step(env, state, actions, num_keys):
+    """The first step from `state` under `num_keys` different keys."""
+    return [play(env, [actions], state, jax.random.key(k))[0] for k in range(num_keys)]
+
+
+def test_stag_hunt_all_hunters_on_stag_capture_it():
+    state = _hand_state(STILL_STAG, [[2, 2], [2, 1]], [2, 2], [[2, 2], [4, 4]])
+    outcomes = _after_one_step(STILL_STAG, state, (STAY, DOWN), 8)
+    for s in outcomes:
+        assert s.rewards == [5.0, 5.0]  # no extra hare reward on a stag capture
+        assert s.info["success"] and s.info["stag_captures"] == 1
+        np.testing.assert_array_equal(s.state.hunters, [[2, 2], [2, 2]])
+        np.testing.assert_array_equal(s.state.hares, [[2, 2], [4, 4]])  # hares left alone
+    new_stags = {tuple(np.asarray(s.state.stag).tolist()) for s in outcomes}
+    assert len(new_stags) > 1, "the captured stag must respawn at a random cell"
+    assert all(0 <= c < 5 for cell in new_stags for c in cell)
+
+
+def test_stag_hunt_hunter_on_hare_gets_one():
+    state = _hand_state(STILL_STAG, [[0, 1], [3, 3]], [2, 2], [[0, 0], [4, 4]])
+    outcomes = _after_one_step(STILL_STAG, state, (UP, STAY), 8)
+    for s in outcomes:
+        assert s.rewards == [1.0, 0.0]
+        assert not s.info["success"] and s.info["stag_captures"] == 0
+        np.testing.assert_array_equal(s.state.hares[1], [4, 4])
+        np.testing.assert_array_equal(s.state.stag, [2, 2])  # stag_move_prob = 0
+    assert len({tuple(np.asarray(s.state.hares[0]).tolist()) for s in outcomes}) > 1
+
+
+def test_stag_hunt_two_hunters_on_one_hare_both_get_one():
+    state = _hand_state(STILL_STAG, [[1, 0], [0, 1]], [2, 2], [[0, 0], [4, 4]])
+    (s,) = play(STILL_STAG, [(LEFT, UP)], state)
+    assert s.rewards == [1.0, 1.0]
+
+
+def test_stag_hunt_one_hunter_on_stag_gets_nothing():
+    state = _hand_state(STILL_STAG, [[2, 2], [0, 4]], [2, 2], [[0, 0], [4, 4]])
+    (s,) = play(STILL_STAG, [(STAY, STAY)], state)
+    assert s.rewards == [0.0, 0.0] and not s.info["success"]
+
+
+def test_stag_hunt_moves_are_clipped_at_walls():
+    state = _hand_state(STILL_STAG, [[0, 0], [4, 4]], [2, 2], [[1, 3], [3, 1]])
+    up_down, left_right, right_left = play(
+        STILL_STAG, [(UP, DOWN), (LEFT, RIGHT), (RIGHT, LEFT)], state
+    )
+    np.testing.assert_array_equal(up_down.state.hunters, [[0, 0], [4, 4]])
+    np.testing.assert_array_equal(left_right.state.hunters, [[0, 0], [4, 4]])
+    np.testing.assert_array_equal(right_left.state.hunters, [[1, 0], [3, 4]])
+
+
+def test_stag_hunt_still_stag_never_moves_and_episode_lasts_max_steps():
+    state = _hand_state(STILL_STAG, [[0, 0], [4, 4]], [2, 2], [[1, 3], [3, 1]])
+    steps = play(STILL_STAG, [(STAY, STAY)] * STILL_STAG.max_steps, state)
+    assert all(np.array_equal(s.state.stag, [2, 2]) for s in steps)
+    assert [s.done for s in steps] == [False] * 49 + [True]
+
+
+def test_stag_hunt_wandering_stag_takes_one_step():
+    env = StagHunt(stag_move_prob=1.0)
+    state = _hand_state(env, [[0, 0], [4, 4]], [2, 2], [[1, 3], [3, 1]])
+    for s in _after_one_step(env, state, (STAY, STAY), 4):
+        assert np.abs(np.asarray(s.state.stag) - [2, 2]).sum() == 1
+
+
+def test_stag_hunt_observation_order():
+    env = StagHunt(n_players=3, stag_move_prob=0.0)
+    state = _hand_state(env, [[0, 1], [2, 3], [4, 0]], [1, 1], [[3, 3], [0, 4]])
+    (s,) = play(env, [(STAY, STAY, STAY)], state)
+    # Hunter 1: own cell, hunters 0 and 2, the stag, the two hares; divided by the grid size.
+    expected = np.array([2, 3, 0, 1, 4, 0, 1, 1, 3, 3, 0, 4], np.float32) / 5
+    np.testing.assert_array_equal(s.obs[1], expected)
+    assert s.obs.dtype == np.float32 and s.obs.shape == (3, env.obs_dim)
+
+
+def test_stag_hunt_episode_success_is_clipped_stag_rate():
+    env = StagHunt()
+    score = functools.partial(env.episode_success, jnp.int32(0), jnp.int32(50))
+    assert score(jnp.array([5.0, 5.0])) == 1.0
+    assert score(jnp.array([2.0, 3.0])) == 0.5
+    assert score(jnp.array([12.0, 11.0])) == 1.0
+    assert score(jnp.array([0.0, 0.0])) == 0.0
+
+
+# --- bad parameters ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("env_id", "params", "field"),
+    [
+        ("escape_room-v0", {"n_agents": 2, "min_at_lever": 2}, "min_at_lever"),
+        ("escape_room-v0", {"n_agents": 1}, "n_agents"),
+        ("ipd-v0", {"n_players": 1}, "n_players"),
+        ("ipd-v0", {"max_steps": 0}, "max_steps"),
+        ("stag_hunt_matrix-v0", {"n_players": 2.0}, "n_players"),
+        ("stag_hunt-v0", {"grid_size": 1}, "grid_size"),
+        ("stag_hunt-v0", {"stag_move_prob": 1.5}, "stag_move_prob"),
+        ("stag_hunt-v0", {"stag_move_prob": "0.5"}, "stag_move_prob"),
+        ("stag_hunt_matrix-v0", {"game": "ipd"}, "game"),
+        ("ipd-v0", {"colour": "red"}, "colour"),
+    ],
+)
+def test_bad_parameter_names_the_field(env_id, params, field):
+    with pytest.raises(InvalidParameter, match=field) as error:
+        envs.make(env_id, **params)
+    assert str(error.value).startswith(f"{field}:")
+
+
+def test_unknown_game_names_the_allowed_games():
+    with pytest.raises(InvalidParameter, match="game: must be one of ipd, stag_hunt"):
+        MatrixGame("chess")
+
+
+def test_unknown_env_id_lists_registered_ids():
+    with pytest.raises(InvalidParameter) as error:
+        envs.make("nope-v0")
+    for env_id in envs.registered():
+        assert env_id in str(error.value)
