@@ -87,7 +87,7 @@ def test_meta_gradient_matches_finite_differences():
         state, traj, new_traj, eps = _to_f64((state, traj, new_traj, eps))
 
         def objective(own_incentive, giver):
-            return lio.giver_objective(
+            return lio.own_giver_objective(
                 own_incentive,
                 giver,
                 ENV,
@@ -130,7 +130,7 @@ def test_meta_gradient_flows_only_through_recipient_updates():
     own = jax.tree.map(lambda x: x[0], state.incentive)
     grad = jax.jit(
         jax.grad(
-            lambda o: lio.giver_objective(
+            lambda o: lio.own_giver_objective(
                 o, jnp.int32(0), ENV, cfg, state.policy, state.incentive, traj, eps, new_traj
             )
         )
@@ -204,3 +204,14 @@ def test_each_giver_updates_only_its_own_incentive_net():
         for i in range(ENV.num_agents)
     ]
     assert all(moved)
+
+
+def test_shared_incentive_variant_equals_default_for_two_agents():
+    env = envs.make("escape_room-v0")
+    cfg = lio.default_config(env)
+    shared = dataclasses.replace(cfg, original_shared_incentive_updates=True)
+    key = jax.random.PRNGKey(9)
+    a, _ = jax.jit(lio.update, static_argnums=(1, 2))(lio.init(key, env, cfg), env, cfg)
+    b, _ = jax.jit(lio.update, static_argnums=(1, 2))(lio.init(key, env, shared), env, shared)
+    for x, y in zip(jax.tree.leaves(a.incentive), jax.tree.leaves(b.incentive), strict=True):
+        np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=1e-6, atol=1e-7)

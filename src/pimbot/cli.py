@@ -11,8 +11,9 @@ with status 2, before anything is written.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
+
+from pimbot import jax_setup
 
 
 class UsageError(Exception):
@@ -80,22 +81,18 @@ def build_parser() -> argparse.ArgumentParser:
         help="override a learner hyperparameter (repeatable), e.g. --hp lr_policy=1e-3",
     )
     train.add_argument("--out", required=True, help="run directory (created; rerun to resume)")
+    train.add_argument(
+        "--chunk-iterations",
+        type=_int_arg("chunk_iterations", 1),
+        default=2000,
+        help="iterations per compiled chunk, i.e. between checkpoints (rounded to whole "
+        "evaluation periods; does not change results)",
+    )
     train.add_argument("--quiet", action="store_true", help="no progress display")
 
     commands.add_parser("envs", help="list environments and their parameters")
     commands.add_parser("learners", help="list learners and their hyperparameters")
     return parser
-
-
-def _use_all_cpu_cores() -> None:
-    """Exposes one XLA host device per CPU core (seeds are sharded over devices).
-
-    Must run before jax is imported; it does not affect GPU backends.
-    """
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    flags = os.environ.get("XLA_FLAGS", "")
-    if cores and cores > 1 and "xla_force_host_platform_device_count" not in flags:
-        os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={cores}".strip()
 
 
 def cmd_envs() -> int:
@@ -138,7 +135,9 @@ def cmd_train(args: argparse.Namespace) -> int:
         eval_period=args.eval_period,
         eval_episodes=args.eval_episodes,
     )
-    result = runner.train(run, args.out, progress=not args.quiet)
+    result = runner.train(
+        run, args.out, progress=not args.quiet, chunk_iterations=args.chunk_iterations
+    )
     if result.already_finished:
         print(f"{result.run_dir}: this run has already finished; nothing to do.")
     final = result.summary["final"]
@@ -163,7 +162,8 @@ def main(argv: list[str] | None = None) -> int:
             return cmd_envs()
         if args.command == "learners":
             return cmd_learners()
-        _use_all_cpu_cores()
+        jax_setup.use_all_cpu_cores()
+        jax_setup.enable_compilation_cache()
         return cmd_train(args)
     except (UsageError, InvalidParameter) as error:
         print(f"pimbot: error: {error}", file=sys.stderr)

@@ -173,9 +173,21 @@ def check_run_dir(run_dir: Path, resolved: ResolvedRun) -> None:
 
 
 def train(
-    run: RunConfig, run_dir: str | Path, *, progress: bool = True, checkpoint: bool = True
+    run: RunConfig,
+    run_dir: str | Path,
+    *,
+    progress: bool = True,
+    chunk_iterations: int = TARGET_CHUNK_ITERATIONS,
 ) -> TrainResult:
-    """Trains (or resumes, or reports finished) one run into `run_dir`."""
+    """Trains (or resumes, or reports finished) one run into `run_dir`.
+
+    Args:
+        run: what to train.
+        run_dir: the run directory; rerunning on it resumes from the last checkpoint.
+        progress: show a progress display on stderr.
+        chunk_iterations: iterations per compiled call and checkpoint (rounded down to
+            whole evaluation periods, at least one); results do not depend on it.
+    """
     resolved = resolve(run)
     run_dir = Path(run_dir)
     check_run_dir(run_dir, resolved)
@@ -205,7 +217,7 @@ def train(
         eval_roots = jax.device_put(eval_roots, sharding)
 
     period = resolved.eval_period
-    per_chunk = evals_per_chunk(resolved.num_evals, period)
+    per_chunk = evals_per_chunk(resolved.num_evals, period, chunk_iterations)
     t0 = time.perf_counter()
     chunk_fn = make_chunk_fn(resolved, per_chunk).lower(states, eval_roots).compile()
     compile_s = time.perf_counter() - t0
@@ -227,8 +239,7 @@ def train(
             rows = metric_rows(resolved, chunk_metrics, seeds, perf)
             columns = columns or list(rows[0])
             store.append_rows(run_dir, columns, rows)
-            if checkpoint:
-                store.save_checkpoint(run_dir, flax.serialization.to_bytes(states), done)
+            store.save_checkpoint(run_dir, flax.serialization.to_bytes(states), done)
             success = float(np.mean([r["eval/success"] for r in rows[-run.seeds :]]))
             bar.update(done, success)
     finally:

@@ -53,6 +53,10 @@ class LIOConfig:
     """Final ε."""
     epsilon_decay_iters: int = 1000
     """Iterations over which ε decays linearly."""
+    original_shared_incentive_updates: bool = False
+    """Reproduce the original code's N ≥ 3 behaviour: each giver's optimizer moves every
+    giver's η along its own surrogate (the original optimizer has no variable list).
+    Off by default (spec: each giver updates only its own η); same as off for N = 2."""
 
 
 def default_config(env: Env) -> LIOConfig:
@@ -126,6 +130,13 @@ def give_fn(module: nets.MLP, incentive, num_actions: int, incentive_max: float)
     return give
 
 
+def _init_meta_opt(cfg: LIOConfig, incentive, num_agents: int):
+    optimizer = optax.adam(cfg.lr_incentive)
+    if cfg.original_shared_incentive_updates:
+        return jax.vmap(lambda _: optimizer.init(incentive))(jnp.arange(num_agents))
+    return optimizer.init(incentive)
+
+
 def init(key: jax.Array, env: Env, cfg: LIOConfig) -> LIOState:
     policy_module, incentive_module = _modules(env, cfg)
     policy_key, incentive_key, key = jax.random.split(key, 3)
@@ -136,7 +147,7 @@ def init(key: jax.Array, env: Env, cfg: LIOConfig) -> LIOState:
     return LIOState(
         policy=policy,
         incentive=incentive,
-        incentive_opt=optax.adam(cfg.lr_incentive).init(incentive),
+        incentive_opt=_init_meta_opt(cfg, incentive, n),
         cost_opt=optax.adam(cfg.lr_cost).init(incentive),
         key=key,
         iteration=jnp.zeros((), jnp.int32),
@@ -160,15 +171,17 @@ def recipient_update(env, cfg, policy, incentive, traj: Trajectory, epsilon):
 
 
 def giver_objective(
-    own_incentive, giver: jax.Array, env, cfg, policy, incentive, traj, epsilon, new_traj
+    incentive, giver: jax.Array, env, cfg, policy, traj, epsilon, new_traj
 ) -> jax.Array:
     """Giver i's surrogate: Σ_{j≠i} Σ_t log π_θ̂j(η)(â_t^j|ô_t^j)·Ĝ_t^{i,env} (plain softmax).
 
-    Only giver i's parameters are the argument; the others' η are held fixed.
+    Args:
+        incentive: all givers' stacked η; θ̂(η) is recomputed from it on τ.
+        giver: i.
+        traj, new_traj: τ (played with θ) and τ̂ (played with θ̂).
     """
     policy_module, _ = _modules(env, cfg)
-    eta = jax.tree.map(lambda stacked, own: stacked.at[giver].set(own), incentive, own_incentive)
-    new_policy = recipient_update(env, cfg, policy, eta, traj, epsilon)
+    new_policy = recipient_update(env, cfg, policy, incentive, traj, epsilon)
     logits = jax.vmap(policy_module.apply, in_axes=(0, 1), out_axes=1)(new_policy, new_traj.obs)
     log_probs = jax.nn.log_softmax(logits)  # [T, N, A]
     taken = jnp.take_along_axis(log_probs, new_traj.actions[..., None], axis=-1)[..., 0]
@@ -176,6 +189,49 @@ def giver_objective(
     recipients = (jnp.arange(env.num_agents) != giver).astype(jnp.float32)
     mask = new_traj.valid.astype(jnp.float32)
     return jnp.sum(taken * recipients[None, :] * (mask * env_returns)[:, None])
+
+
+def own_giver_objective(own_incentive, giver, env, cfg, policy, incentive, traj, epsilon, new_traj):
+    """`giver_objective` as a function of giver i's own η_i, the other givers' η held fixed."""
+    eta = jax.tree.map(lambda stacked, own: stacked.at[giver].set(own), incentive, own_incentive)
+    return giver_objective(eta, giver, env, cfg, policy, traj, epsilon, new_traj)
+
+
+def meta_gradients(env, cfg, policy, incentive, traj, epsilon, new_traj):
+    """Every giver's gradient of its surrogate.
+
+    Returns leaves [N, ...] (giver i's gradient w.r.t. η_i), or, with
+    `cfg.original_shared_incentive_updates`, [N giver, N owner, ...] (giver i's
+    gradient w.r.t. every η_k, as the original's unrestricted optimizers take it).
+    """
+    givers = jnp.arange(env.num_agents)
+    if cfg.original_shared_incentive_updates:
+
+        def full(giver):
+            return jax.grad(giver_objective)(
+                incentive, giver, env, cfg, policy, traj, epsilon, new_traj
+            )
+
+        return jax.vmap(full)(givers)
+
+    def own(own_incentive, giver):
+        return own_giver_objective(
+            own_incentive, giver, env, cfg, policy, incentive, traj, epsilon, new_traj
+        )
+
+    return jax.vmap(jax.grad(own))(incentive, givers)
+
+
+def meta_step(cfg, incentive, opt_state, grads):
+    """Adam ascent on the surrogates; one Adam state per giver in the shared variant."""
+    optimizer = optax.adam(cfg.lr_incentive)
+    ascent = jax.tree.map(jnp.negative, grads)  # Adam minimises
+    if cfg.original_shared_incentive_updates:
+        updates, opt_state = jax.vmap(optimizer.update)(ascent, opt_state)
+        updates = jax.tree.map(lambda u: u.sum(axis=0), updates)
+    else:
+        updates, opt_state = optimizer.update(ascent, opt_state)
+    return optax.apply_updates(incentive, updates), opt_state
 
 
 def incentive_cost(incentive, env, cfg, traj: Trajectory) -> jax.Array:
@@ -199,17 +255,8 @@ def update(state: LIOState, env: Env, cfg: LIOConfig) -> tuple[LIOState, dict[st
     new_policy = recipient_update(env, cfg, state.policy, state.incentive, traj, epsilon)
     new_traj = rollout(env, key_second, act_fn(policy_module, new_policy, epsilon), give)
 
-    def objective(own_incentive, giver):
-        return giver_objective(
-            own_incentive, giver, env, cfg, state.policy, state.incentive, traj, epsilon, new_traj
-        )
-
-    meta_grad = jax.vmap(jax.grad(objective))(state.incentive, jnp.arange(env.num_agents))
-    # Ascend the surrogate: Adam minimises, so hand it the negated gradient.
-    meta_updates, incentive_opt = optax.adam(cfg.lr_incentive).update(
-        jax.tree.map(jnp.negative, meta_grad), state.incentive_opt
-    )
-    incentive = optax.apply_updates(state.incentive, meta_updates)
+    meta_grad = meta_gradients(env, cfg, state.policy, state.incentive, traj, epsilon, new_traj)
+    incentive, incentive_opt = meta_step(cfg, state.incentive, state.incentive_opt, meta_grad)
     cost_opt = state.cost_opt
     if cfg.lr_cost > 0:
         cost_grad = jax.grad(incentive_cost)(state.incentive, env, cfg, traj)

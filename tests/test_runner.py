@@ -1,0 +1,139 @@
+"""The training runner: seed independence, run directories, resume after a hard kill."""
+
+import csv
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pimbot.experiment import runner, store
+from pimbot.experiment.config import RunConfig
+
+SMALL = dict(
+    env_id="escape_room-v0", learner="lio", iterations=200, eval_period=100, eval_episodes=4
+)
+
+
+def _rows_by_seed(run_dir: Path) -> dict[int, list[dict]]:
+    rows = store.read_metrics(run_dir)
+    out: dict[int, list[dict]] = {}
+    for row in rows:
+        out.setdefault(int(row["seed"]), []).append(row)
+    return out
+
+
+def _learning_columns(row: dict) -> list[str]:
+    return [c for c in row if not c.startswith("perf/")]
+
+
+def test_seed_gives_the_same_result_alone_or_in_a_batch_of_10(tmp_path):
+    alone = runner.train(RunConfig(**SMALL, seeds=1, first_seed=3), tmp_path / "a", progress=False)
+    batch = runner.train(RunConfig(**SMALL, seeds=10, first_seed=0), tmp_path / "b", progress=False)
+    rows_alone = _rows_by_seed(alone.run_dir)[3]
+    rows_batch = _rows_by_seed(batch.run_dir)[3]
+    assert len(rows_alone) == len(rows_batch) == 2
+    for a, b in zip(rows_alone, rows_batch, strict=True):
+        for column in _learning_columns(a):
+            np.testing.assert_allclose(
+                float(a[column]), float(b[column]), rtol=1e-5, atol=1e-6, err_msg=column
+            )
+    # Different seeds do differ.
+    by_seed = _rows_by_seed(batch.run_dir)
+    assert by_seed[0][0]["eval/given/agent_0"] != by_seed[1][0]["eval/given/agent_0"]
+
+
+def test_run_directory_layout_and_finished_rerun(tmp_path):
+    run = RunConfig(**SMALL, seeds=2)
+    first = runner.train(run, tmp_path / "r", progress=False)
+    assert not first.already_finished
+    for name in ("config.json", "metrics.csv", "summary.json", "checkpoint/state.msgpack"):
+        assert (tmp_path / "r" / name).exists(), name
+    config = store.read_json(tmp_path / "r" / "config.json")
+    assert config["env"]["id"] == "escape_room-v0"
+    assert config["jax_backend"] in ("cpu", "gpu", "tpu")
+    assert config["identity"]["learner_config"]["lr_policy"] == 1e-4
+    rows = store.read_metrics(tmp_path / "r")
+    assert len(rows) == 2 * 2
+    for column in (
+        "eval/success",
+        "eval/return_ratio",
+        "eval/return_env/agent_1",
+        "eval/given/agent_0",
+        "eval/steps",
+        "perf/iters_per_s",
+    ):
+        assert column in rows[0], column
+    again = runner.train(run, tmp_path / "r", progress=False)
+    assert again.already_finished
+    assert len(store.read_metrics(tmp_path / "r")) == 4
+
+
+def test_a_different_run_in_the_same_directory_is_refused(tmp_path):
+    runner.train(RunConfig(**SMALL, seeds=2), tmp_path / "r", progress=False)
+    with pytest.raises(runner.RunDirConflict, match="seeds"):
+        runner.train(RunConfig(**SMALL, seeds=3), tmp_path / "r", progress=False)
+
+
+def _cli(out: Path) -> list[str]:
+    return [
+        sys.executable,
+        "-m",
+        "pimbot.cli",
+        "train",
+        "escape_room-v0",
+        "--seeds",
+        "2",
+        "--iterations",
+        "20000",
+        "--eval-period",
+        "100",
+        "--eval-episodes",
+        "2",
+        "--quiet",
+        "--out",
+        str(out),
+    ]
+
+
+def _read_csv(path: Path) -> list[dict]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_sigkill_then_rerun_resumes_with_identical_results(tmp_path):
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    killed = tmp_path / "killed"
+    proc = subprocess.Popen(
+        _cli(killed),
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    meta = killed / "checkpoint" / "meta.json"
+    deadline = time.time() + 120
+    while not meta.exists() and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.02)
+    assert meta.exists(), "no checkpoint was written"
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert not (killed / "summary.json").exists(), "the run finished before it could be killed"
+    done_at_kill = store.read_json(meta)["iteration"]
+    assert 0 < done_at_kill < 20000
+
+    subprocess.run(_cli(killed), env=env, check=True, capture_output=True)
+    clean = tmp_path / "clean"
+    subprocess.run(_cli(clean), env=env, check=True, capture_output=True)
+
+    resumed_rows = _read_csv(killed / "metrics.csv")
+    clean_rows = _read_csv(clean / "metrics.csv")
+    keys = [(r["iteration"], r["seed"]) for r in resumed_rows]
+    assert len(keys) == len(set(keys)) == 2 * 200, "duplicated or missing rows"
+    assert keys == [(r["iteration"], r["seed"]) for r in clean_rows]
+    for a, b in zip(resumed_rows, clean_rows, strict=True):
+        assert {c: a[c] for c in _learning_columns(a)} == {c: b[c] for c in _learning_columns(b)}
