@@ -12,14 +12,18 @@ then `device_put` onto the `seed_sharding` — and the timed function is the
 runner's `make_chunk_fn(resolved, num_periods)`: `num_periods` evaluation
 periods of `eval_period` training iterations each, every period followed by the
 evaluation (`eval_episodes` episodes, `reduce_eval`) exactly as in training.
-Before jax is imported, `pimbot.cli._use_all_cpu_cores()` exposes one XLA host
-device per CPU core, as `pimbot train` does, so on a CPU the seed axis is
+Before jax is imported, `pimbot.jax_setup.use_all_cpu_cores()` exposes one XLA
+host device per CPU core, as `pimbot train` does, so on a CPU the seed axis is
 sharded over the cores; on a GPU it runs on the (single) GPU.
 
 Per case it reports:
 
 * compile time — ahead-of-time `jit(...).lower(states, eval_roots).compile()`,
-  timed as the runner times it (tracing + lowering + XLA compilation);
+  timed as the runner times it (tracing + lowering + XLA compilation). JAX's
+  persistent compilation cache is switched off, so this is a cold compile (what
+  a first `pimbot train` pays); `--compilation-cache` turns on pimbot's cache
+  (`jax_setup.enable_compilation_cache`, as `pimbot train` does), and a second
+  such run then shows the compile time of a rerun or resume;
 * steady-state throughput — one warm-up call of the compiled chunk, then
   `--repeats` timed calls (`jax.block_until_ready` on the returned states and
   metrics), chaining the states as training does; the median call time gives
@@ -41,12 +45,14 @@ case alone, and a GPU run starts from an empty allocator.
 
 Not measured: the host-side work between chunks in `train` (metric rows to CSV,
 checkpoint) — small next to the chunk — and the chunk length: training runs
-chunks of up to 2000 iterations (`evals_per_chunk`), the default here is one
-evaluation period (100 iterations for Escape Room) per call so that 1000 seeds
-stay quick on a CPU; the per-iteration cost is the same, as a chunk is a
-`lax.scan` over identical periods (use `--iterations 2000` to time training's
-chunk exactly). Timings taken while other processes load the machine (another
-`pimbot train`, say) are distorted; the script warns when it sees one.
+chunks of up to `--chunk-iterations` (default 2000) iterations, the default
+here is one evaluation period (100 iterations for Escape Room) per call so that
+1000 seeds stay quick on a CPU; the per-iteration cost is the same, as a chunk
+is a `lax.scan` over identical periods (use `--iterations 2000` to time
+training's chunk exactly; on an H100, ER(2,1) × 10 seeds ran at 2414 it/s per
+seed with 100-iteration calls and 2444 with 2000). Timings taken while other
+processes load the machine (another `pimbot train`, say) are distorted; the
+script warns when it sees one.
 
 Finally it extrapolates the wall time of the 10-seed, 50 000-iteration ER(2,1)
 run (compile + 50 000 iterations at the measured 10-seed rate) when that case
@@ -142,11 +148,17 @@ def run_config(config: str, num_seeds: int, args: argparse.Namespace):
 
 def run_case(config: str, num_seeds: int, args: argparse.Namespace) -> dict[str, Any]:
     """Builds, compiles and times one case in this process (jax imported here, lazily)."""
-    from pimbot.cli import _use_all_cpu_cores
+    from pimbot import jax_setup
 
-    _use_all_cpu_cores()  # before jax is imported, as `pimbot train` does
+    jax_setup.use_all_cpu_cores()  # before jax is imported, as `pimbot train` does
 
     import jax
+
+    if args.compilation_cache:
+        cache_dir = jax_setup.enable_compilation_cache()
+    else:  # time a cold compile, whatever JAX_COMPILATION_CACHE_DIR says
+        jax.config.update("jax_enable_compilation_cache", False)
+        cache_dir = None
 
     from pimbot.experiment import runner
     from pimbot.experiment.config import resolve
@@ -214,6 +226,7 @@ def run_case(config: str, num_seeds: int, args: argparse.Namespace) -> dict[str,
         "eval_episodes": resolved.eval_episodes,
         "repeats": args.repeats,
         "compile_s": compile_s,
+        "compilation_cache": str(cache_dir) if cache_dir is not None else None,
         "call_s": call_s,
         "median_call_s": median_s,
         "seed_iters_per_s": iterations * num_seeds / median_s,
@@ -235,6 +248,8 @@ def run_isolated(config: str, num_seeds: int, args: argparse.Namespace) -> dict[
     """Runs one case in a fresh interpreter and returns its result."""
     cmd = [sys.executable, str(Path(__file__).resolve()), "--case", config, str(num_seeds)]
     cmd += ["--learner", args.learner, "--repeats", str(args.repeats)]
+    if args.compilation_cache:
+        cmd.append("--compilation-cache")
     for flag, value in (
         ("--iterations", args.iterations),
         ("--eval-period", args.eval_period),
@@ -320,8 +335,13 @@ def legend(results: list[dict[str, Any]]) -> str:
             f"{r['iterations_per_call']} iterations = "
             f"{r['iterations_per_call'] // r['eval_period']} × (eval_period {r['eval_period']} "
             f"+ evaluation of {r['eval_episodes']} episodes)",
-            "compile s: jit(make_chunk_fn).lower(...).compile(); "
-            "seed-it/s = iterations × seeds / call s",
+            "compile s: jit(make_chunk_fn).lower(...).compile(), "
+            + (
+                f"persistent cache {r['compilation_cache']}"
+                if r.get("compilation_cache")
+                else "cold (no persistent cache)"
+            )
+            + "; seed-it/s = iterations × seeds / call s",
             memory,
             "state = learner state of all padded seeds; XLA temp = compiled.memory_analysis() "
             "temp buffers (per device program)",
@@ -380,7 +400,8 @@ def build_parser() -> argparse.ArgumentParser:
         type=positive_int,
         default=None,
         help="training iterations per timed call, a multiple of eval_period "
-        "(default: one eval period, 100 for Escape Room; training uses chunks of up to 2000)",
+        "(default: one eval period, 100 for Escape Room; `pimbot train` uses chunks of up to "
+        "--chunk-iterations, default 2000)",
     )
     parser.add_argument(
         "--repeats", type=positive_int, default=3, help="timed calls after the warm-up"
@@ -392,6 +413,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--eval-episodes", type=positive_int, default=None, help="default: as in training"
     )
     parser.add_argument("--json", type=Path, default=None, help="also write the results here")
+    parser.add_argument(
+        "--compilation-cache",
+        action="store_true",
+        help="use pimbot's persistent compilation cache as `pimbot train` does "
+        "(default: off, cold compiles)",
+    )
     parser.add_argument(
         "--in-process",
         action="store_true",
@@ -409,9 +436,9 @@ def main(argv: list[str] | None = None) -> int:
         print(RESULT_MARKER + json.dumps(result), flush=True)
         return 0
 
-    from pimbot.cli import _use_all_cpu_cores
+    from pimbot import jax_setup
 
-    _use_all_cpu_cores()  # before anything imports jax (cases in this process use it)
+    jax_setup.use_all_cpu_cores()  # before anything imports jax (cases in this process use it)
     from pimbot.envs.core import InvalidParameter
     from pimbot.experiment.config import resolve
 

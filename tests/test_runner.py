@@ -71,33 +71,14 @@ def test_run_directory_layout_and_finished_rerun(tmp_path):
     again = runner.train(run, tmp_path / "r", progress=False)
     assert again.already_finished
     assert len(store.read_metrics(tmp_path / "r")) == 4
-
-
-def test_a_different_run_in_the_same_directory_is_refused(tmp_path):
-    runner.train(RunConfig(**SMALL, seeds=2), tmp_path / "r", progress=False)
     with pytest.raises(runner.RunDirConflict, match="seeds"):
         runner.train(RunConfig(**SMALL, seeds=3), tmp_path / "r", progress=False)
 
 
 def _cli(out: Path) -> list[str]:
-    return [
-        sys.executable,
-        "-m",
-        "pimbot.cli",
-        "train",
-        "escape_room-v0",
-        "--seeds",
-        "2",
-        "--iterations",
-        "20000",
-        "--eval-period",
-        "100",
-        "--eval-episodes",
-        "2",
-        "--quiet",
-        "--out",
-        str(out),
-    ]
+    args = "train escape_room-v0 --seeds 2 --iterations 6000 --eval-period 100"
+    args += " --eval-episodes 2 --chunk-iterations 500 --quiet --out"
+    return [sys.executable, "-m", "pimbot.cli", *args.split(), str(out)]
 
 
 def _read_csv(path: Path) -> list[dict]:
@@ -124,7 +105,7 @@ def test_sigkill_then_rerun_resumes_with_identical_results(tmp_path):
     proc.wait()
     assert not (killed / "summary.json").exists(), "the run finished before it could be killed"
     done_at_kill = store.read_json(meta)["iteration"]
-    assert 0 < done_at_kill < 20000
+    assert 0 < done_at_kill < 6000
 
     subprocess.run(_cli(killed), env=env, check=True, capture_output=True)
     clean = tmp_path / "clean"
@@ -133,7 +114,7 @@ def test_sigkill_then_rerun_resumes_with_identical_results(tmp_path):
     resumed_rows = _read_csv(killed / "metrics.csv")
     clean_rows = _read_csv(clean / "metrics.csv")
     keys = [(r["iteration"], r["seed"]) for r in resumed_rows]
-    assert len(keys) == len(set(keys)) == 2 * 200, "duplicated or missing rows"
+    assert len(keys) == len(set(keys)) == 2 * 60, "duplicated or missing rows"
     assert keys == [(r["iteration"], r["seed"]) for r in clean_rows]
     for a, b in zip(resumed_rows, clean_rows, strict=True):
         assert {c: a[c] for c in _learning_columns(a)} == {c: b[c] for c in _learning_columns(b)}

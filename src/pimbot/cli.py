@@ -90,6 +90,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     train.add_argument("--quiet", action="store_true", help="no progress display")
 
+    table = commands.add_parser("table", help="Markdown table of finished runs' final metrics")
+    table.add_argument("run_dirs", nargs="+", help="run directories")
+    plot = commands.add_parser("plot", help="learning curves of runs (mean ± 95 % CI) as PNG")
+    plot.add_argument("run_dirs", nargs="+", help="run directories")
+    plot.add_argument("--out", required=True, help="PNG file to write")
+
     commands.add_parser("envs", help="list environments and their parameters")
     commands.add_parser("learners", help="list learners and their hyperparameters")
     return parser
@@ -153,6 +159,35 @@ def cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def _finished_runs(paths: list[str]):
+    from pathlib import Path
+
+    from pimbot.experiment import store
+
+    run_dirs = [Path(p) for p in paths]
+    for run_dir in run_dirs:
+        if not (run_dir / store.SUMMARY).exists():
+            raise UsageError(f"run_dirs: {run_dir} is not a finished pimbot run (no summary.json)")
+    return run_dirs
+
+
+def cmd_table(args: argparse.Namespace) -> int:
+    from pimbot.analysis.tables import summary_table
+
+    print(summary_table(_finished_runs(args.run_dirs)), end="")
+    return 0
+
+
+def cmd_plot(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from pimbot.analysis.plots import plot_runs
+
+    plot_runs(_finished_runs(args.run_dirs), Path(args.out))
+    print(f"wrote {args.out}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     from pimbot.envs.core import InvalidParameter
 
@@ -162,6 +197,10 @@ def main(argv: list[str] | None = None) -> int:
             return cmd_envs()
         if args.command == "learners":
             return cmd_learners()
+        if args.command == "table":
+            return cmd_table(args)
+        if args.command == "plot":
+            return cmd_plot(args)
         jax_setup.use_all_cpu_cores()
         jax_setup.enable_compilation_cache()
         return cmd_train(args)

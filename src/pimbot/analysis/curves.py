@@ -1,0 +1,34 @@
+"""Learning curves read back from run directories (plots and tables never use live state)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from pimbot.experiment import store
+
+
+def load_curve(run_dir: str | Path, column: str) -> tuple[np.ndarray, np.ndarray]:
+    """(iterations [E], values [S, E]) of one metric column, seeds in ascending order."""
+    rows = store.read_metrics(Path(run_dir))
+    if not rows:
+        raise ValueError(f"{run_dir}: no metrics.csv rows")
+    if column not in rows[0]:
+        raise ValueError(f"{run_dir}: no column {column!r}")
+    seeds = sorted({int(r["seed"]) for r in rows})
+    iterations = np.array(sorted({int(r["iteration"]) for r in rows}))
+    index = {it: k for k, it in enumerate(iterations)}
+    values = np.full((len(seeds), len(iterations)), np.nan)
+    for row in rows:
+        values[seeds.index(int(row["seed"])), index[int(row["iteration"])]] = float(row[column])
+    return iterations, values
+
+
+def mean_and_band(values: np.ndarray, resamples: int = 1000, seed: int = 0):
+    """Mean over seeds and a 95 % bootstrap band of the mean, per evaluation point."""
+    rng = np.random.default_rng(seed)
+    n = values.shape[0]
+    picks = rng.integers(0, n, size=(resamples, n))
+    boot = values[picks].mean(axis=1)  # [resamples, E]
+    return values.mean(axis=0), np.quantile(boot, 0.025, axis=0), np.quantile(boot, 0.975, axis=0)
