@@ -36,3 +36,19 @@ def test_lio_cooperates_in_the_prisoners_dilemma(tmp_path):
     result = runner.train(run, tmp_path / "ipd", progress=False, chunk_iterations=10_000)
     cooperation = _final(result.run_dir, "eval/success")
     assert (cooperation >= 0.8).sum() >= 3, cooperation
+
+
+def test_lio_with_the_originals_shared_incentive_updates_solves_escape_room_4_2(tmp_path):
+    run = RunConfig(
+        env_id="escape_room-v0",
+        env_params=(("min_at_lever", 2), ("n_agents", 4)),
+        learner="lio",
+        hparams=(("original_shared_incentive_updates", "true"),),
+        seeds=4,
+        iterations=10_000,
+    )
+    result = runner.train(run, tmp_path / "er42", progress=False, chunk_iterations=10_000)
+    success = _final(result.run_dir, "eval/success")
+    # A uniformly random team: success 0.80, return ratio 0.17.
+    assert success.mean() >= 0.9, success
+    assert _final(result.run_dir, "eval/return_ratio").mean() >= 0.7

@@ -6,6 +6,7 @@ set -euo pipefail
 RUNS=${RUNS:-runs}
 
 pimbot train escape_room-v0 --learner lio --iterations 50000 --quiet --out "$RUNS/lio_er21"
+pimbot train escape_room-v0 --learner lio --first-seed 10 --iterations 50000 --quiet --out "$RUNS/lio_er21_seeds10-19"
 pimbot train escape_room-v0 --learner pg --iterations 50000 --quiet --out "$RUNS/pg_er21"
 pimbot train escape_room-v0 n_agents=4 min_at_lever=2 --iterations 25000 --quiet --out "$RUNS/lio_er42"
 pimbot train escape_room-v0 n_agents=4 min_at_lever=2 --iterations 10000 --quiet \
@@ -15,7 +16,7 @@ pimbot train escape_room-v0 n_agents=4 min_at_lever=3 --iterations 25000 --quiet
     --hp original_shared_incentive_updates=true --out "$RUNS/lio_er43_shared"
 pimbot train ipd-v0 --learner lio --iterations 20000 --eval-period 500 --quiet --out "$RUNS/lio_ipd"
 
-ALL=("$RUNS/lio_er21" "$RUNS/pg_er21" "$RUNS/lio_er42" "$RUNS/lio_er42_shared"
+ALL=("$RUNS/lio_er21" "$RUNS/lio_er21_seeds10-19" "$RUNS/pg_er21" "$RUNS/lio_er42" "$RUNS/lio_er42_shared"
      "$RUNS/lio_er43" "$RUNS/lio_er43_shared" "$RUNS/lio_ipd")
 {
   echo "# Core results: LIO and PG, 10 seeds each"

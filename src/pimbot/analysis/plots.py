@@ -29,6 +29,9 @@ def run_label(run_dir: Path) -> str:
     elif "n_players" in params:
         env = f"{env}(N={params['n_players']})"
     label = f"{config['identity']['learner']} {env}"
+    first, count = config["identity"]["first_seed"], config["identity"]["seeds"]
+    if first:
+        label += f" seeds {first}–{first + count - 1}"
     if config["identity"]["learner_config"].get("original_shared_incentive_updates"):
         label += " shared-η"
     return label

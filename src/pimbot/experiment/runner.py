@@ -240,7 +240,8 @@ def train(
             columns = columns or list(rows[0])
             store.append_rows(run_dir, columns, rows)
             store.save_checkpoint(run_dir, flax.serialization.to_bytes(states), done)
-            success = float(np.mean([r["eval/success"] for r in rows[-run.seeds :]]))
+            latest = [r["eval/success"] for r in rows if r["iteration"] == done]
+            success = float(np.mean(latest))
             bar.update(done, success)
     finally:
         bar.close()
