@@ -140,6 +140,7 @@ def run_config(config: str, num_seeds: int, args: argparse.Namespace):
         seeds=num_seeds,
         eval_period=args.eval_period,
         eval_episodes=args.eval_episodes,
+        attack=args.attack,
     )
     eval_period, _ = run.resolved_eval()
     iterations = args.iterations if args.iterations is not None else eval_period
@@ -176,7 +177,8 @@ def run_case(config: str, num_seeds: int, args: argparse.Namespace) -> dict[str,
     init_keys = jax.vmap(lambda k: jax.random.fold_in(k, 0))(keys)
     eval_roots = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
     env, learner, cfg = resolved.env, resolved.learner, resolved.learner_config
-    states = jax.jit(jax.vmap(lambda k: learner.init(k, env, cfg)))(init_keys)
+    attack = resolved.attack
+    states = jax.jit(jax.vmap(lambda k: learner.init(k, env, cfg, attack)))(init_keys)
     if sharding is not None:
         states = jax.device_put(states, sharding)
         eval_roots = jax.device_put(eval_roots, sharding)
@@ -248,6 +250,8 @@ def run_isolated(config: str, num_seeds: int, args: argparse.Namespace) -> dict[
     """Runs one case in a fresh interpreter and returns its result."""
     cmd = [sys.executable, str(Path(__file__).resolve()), "--case", config, str(num_seeds)]
     cmd += ["--learner", args.learner, "--repeats", str(args.repeats)]
+    if args.attack:
+        cmd += ["--attack", args.attack]
     if args.compilation_cache:
         cmd.append("--compilation-cache")
     for flag, value in (
@@ -396,6 +400,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--learner", default="lio", help="learner (see `pimbot learners`)")
     parser.add_argument(
+        "--attack", default=None, help="attack with default parameters (see `pimbot attacks`)"
+    )
+    parser.add_argument(
         "--iterations",
         type=positive_int,
         default=None,
@@ -473,8 +480,9 @@ def main(argv: list[str] | None = None) -> int:
             results.append(result)
 
     first = results[0]
+    under = f" under {args.attack}" if args.attack else ""
     header = (
-        f"{args.learner} on {ENV_ID}: backend {first['backend']} ({first['device_kind']}), "
+        f"{args.learner} on {ENV_ID}{under}: backend {first['backend']} ({first['device_kind']}), "
         f"jax {first['jax_version']}, {cores} CPU cores"
     )
     if load:

@@ -80,6 +80,17 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="name=value",
         help="override a learner hyperparameter (repeatable), e.g. --hp lr_policy=1e-3",
     )
+    train.add_argument(
+        "--attack", default=None, help="manipulate one agent (see `pimbot attacks`); default: none"
+    )
+    train.add_argument(
+        "--attack-param",
+        "--ap",
+        action="append",
+        default=[],
+        metavar="name=value",
+        help="attack parameter (repeatable), e.g. --ap adversary=1 --ap mode=stealthy",
+    )
     train.add_argument("--out", required=True, help="run directory (created; rerun to resume)")
     train.add_argument(
         "--chunk-iterations",
@@ -98,6 +109,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     commands.add_parser("envs", help="list environments and their parameters")
     commands.add_parser("learners", help="list learners and their hyperparameters")
+    commands.add_parser("attacks", help="list attacks and their parameters")
     return parser
 
 
@@ -126,9 +138,30 @@ def cmd_learners() -> int:
     return 0
 
 
+def cmd_attacks() -> int:
+    from pimbot import attacks
+
+    for name in attacks.registered():
+        cls = attacks.attack_class(name)
+        doc = (cls.__doc__ or "").strip().splitlines()[0]
+        needs = " (needs an incentive channel: lio)" if cls.needs_incentives else ""
+        print(f"{name} [{cls.lever} lever]{needs}: {doc}")
+        for param, default in attacks.parameters(name).items():
+            print(f"    {param} = {default!r}")
+    return 0
+
+
 def cmd_train(args: argparse.Namespace) -> int:
     from pimbot.experiment import runner
-    from pimbot.experiment.config import RunConfig, parse_env_params, parse_hparams
+    from pimbot.experiment.config import (
+        RunConfig,
+        parse_attack_params,
+        parse_env_params,
+        parse_hparams,
+    )
+
+    if args.attack_param and args.attack is None:
+        raise UsageError("attack_param: given without --attack NAME (see `pimbot attacks`)")
 
     run = RunConfig(
         env_id=args.env_id,
@@ -140,6 +173,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         iterations=args.iterations,
         eval_period=args.eval_period,
         eval_episodes=args.eval_episodes,
+        attack=args.attack,
+        attack_params=(parse_attack_params(args.attack, args.attack_param) if args.attack else ()),
     )
     result = runner.train(
         run, args.out, progress=not args.quiet, chunk_iterations=args.chunk_iterations
@@ -197,6 +232,8 @@ def main(argv: list[str] | None = None) -> int:
             return cmd_envs()
         if args.command == "learners":
             return cmd_learners()
+        if args.command == "attacks":
+            return cmd_attacks()
         if args.command == "table":
             return cmd_table(args)
         if args.command == "plot":

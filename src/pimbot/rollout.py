@@ -13,7 +13,10 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from pimbot.attacks.strategies import Attack
 from pimbot.envs.core import Env
+
+NO_ATTACK = Attack()
 
 # act(key, obs [N, obs_dim]) -> actions int32 [N]
 ActFn = Callable[[jax.Array, jax.Array], jax.Array]
@@ -28,7 +31,9 @@ class Trajectory:
     obs: jax.Array  # float32 [T, N, obs_dim], incentive slots filled
     actions: jax.Array  # int32 [T, N]
     env_rewards: jax.Array  # float32 [T, N], zero on invalid steps
-    incentives: jax.Array  # float32 [T, N, N] (giver, recipient), zero on invalid steps
+    incentives: jax.Array  # float32 [T, N, N] (giver, recipient) emitted, zero on invalid steps
+    incentive_scale: jax.Array  # float32 [T, N]: emitted = scale · learned + offset (attacks)
+    incentive_offset: jax.Array  # float32 [T, N, N]
     valid: jax.Array  # bool [T], the step took place
     success: jax.Array  # bool [T], info["success"] of the step
 
@@ -51,38 +56,56 @@ def fill_incentive_obs(env: Env, obs: jax.Array, given: jax.Array) -> jax.Array:
     return obs.at[:, -(n - 1) :].set(given_to_others)
 
 
-def rollout(env: Env, key: jax.Array, act: ActFn, give: GiveFn | None = None) -> Trajectory:
+def rollout(
+    env: Env,
+    key: jax.Array,
+    act: ActFn,
+    give: GiveFn | None = None,
+    attack: Attack = NO_ATTACK,
+    env_step0: jax.Array | int = 0,
+) -> Trajectory:
     """Plays one episode from `env.reset`.
 
     Args:
         env: the environment.
         key: PRNG key for this episode.
         act: samples the joint action from the (filled) observations.
-        give: the incentives emitted after the joint action; None for no incentives.
+        give: the learned incentives after the joint action; None for no incentives.
+        attack: consulted for the actions played and the incentives emitted.
+        env_step0: environment steps taken in training before this episode
+            (for attacks that switch on and off over time).
     """
     n = env.num_agents
     reset_key, steps_key = jax.random.split(key)
     obs, state = env.reset(reset_key)
 
-    def body(carry, step_key):
+    def body(carry, inputs):
         state, obs, given, alive = carry
+        step_key, t = inputs
         act_key, env_key = jax.random.split(step_key)
         obs = fill_incentive_obs(env, obs, given)
-        actions = act(act_key, obs).astype(jnp.int32)
-        incentives = jnp.zeros((n, n), jnp.float32) if give is None else give(obs, actions) * alive
+        actions = attack.act(act(act_key, obs).astype(jnp.int32), env.idle_action, env_step0 + t)
+        scale, offset = attack.emit(n, given)
+        if give is None:
+            incentives = jnp.zeros((n, n), jnp.float32)
+        else:
+            incentives = (scale[:, None] * give(obs, actions) + offset) * alive
         next_obs, next_state, rewards, done, info = env.step(env_key, state, actions)
         step = Trajectory(
             obs=obs,
             actions=actions,
             env_rewards=rewards * alive,
             incentives=incentives,
+            incentive_scale=scale.astype(jnp.float32),
+            incentive_offset=offset.astype(jnp.float32),
             valid=alive,
             success=info["success"] & alive,
         )
         return (next_state, next_obs, given + incentives, alive & ~done), step
 
     init = (state, obs, jnp.zeros((n, n), jnp.float32), jnp.array(True))
-    _, traj = jax.lax.scan(body, init, jax.random.split(steps_key, env.max_steps))
+    steps = (jax.random.split(steps_key, env.max_steps), jnp.arange(env.max_steps))
+    _, traj = jax.lax.scan(body, init, steps)
     return traj
 
 

@@ -11,8 +11,9 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from pimbot import envs, learners
+from pimbot import attacks, envs, learners
 from pimbot.envs.core import InvalidParameter
+from pimbot.rollout import NO_ATTACK
 
 DEFAULT_EVAL = {  # (eval_period, eval_episodes) by environment family, as the original
     "escape_room-v0": (100, 10),
@@ -42,6 +43,10 @@ class RunConfig:
     """Iterations between evaluations; None = the environment's default (ER 100, else 1000)."""
     eval_episodes: int | None = None
     """Evaluation episodes per evaluation point; None = 10."""
+    attack: str | None = None
+    """Manipulation of one agent (see `pimbot attacks`); None = clean."""
+    attack_params: tuple[tuple[str, Any], ...] = ()
+    """Attack parameters as sorted (name, value) pairs (adversary index included)."""
 
     def resolved_eval(self) -> tuple[int, int]:
         period, episodes = DEFAULT_EVAL.get(self.env_id, FALLBACK_EVAL)
@@ -61,6 +66,7 @@ class ResolvedRun:
     learner_config: Any
     eval_period: int
     eval_episodes: int
+    attack: Any = NO_ATTACK
 
     @property
     def num_evals(self) -> int:
@@ -78,6 +84,8 @@ class ResolvedRun:
             "iterations": self.run.iterations,
             "eval_period": self.eval_period,
             "eval_episodes": self.eval_episodes,
+            "attack": self.run.attack,
+            "attack_params": dataclasses.asdict(self.attack) if self.run.attack else {},
         }
 
 
@@ -119,7 +127,16 @@ def resolve(run: RunConfig) -> ResolvedRun:
             )
         overrides[name] = coerce_like(name, value, getattr(defaults, name))
     learner_config = dataclasses.replace(defaults, **overrides)
-    return ResolvedRun(run, env, learner, learner_config, eval_period, eval_episodes)
+    attack = NO_ATTACK
+    if run.attack is not None:
+        attack = attacks.make(run.attack, env.num_agents, **dict(run.attack_params))
+        if attack.needs_incentives and not learner.has_incentives:
+            usable = [n for n in attacks.registered() if not attacks.ATTACKS[n].needs_incentives]
+            raise InvalidParameter(
+                f"attack: {run.attack} manipulates incentives, and learner {run.learner} has no "
+                f"incentive channel; attacks usable with {run.learner}: {', '.join(usable)}"
+            )
+    return ResolvedRun(run, env, learner, learner_config, eval_period, eval_episodes, attack)
 
 
 def coerce_like(name: str, value: Any, default: Any) -> Any:
@@ -153,6 +170,11 @@ def coerce_like(name: str, value: Any, default: Any) -> Any:
 def parse_env_params(env_id: str, pairs: list[str]) -> tuple[tuple[str, Any], ...]:
     """Parses command-line `name=value` env parameters, typed like their defaults."""
     return _parse_pairs(pairs, envs.spec(env_id).parameters(), f"parameter of {env_id}")
+
+
+def parse_attack_params(attack: str, pairs: list[str]) -> tuple[tuple[str, Any], ...]:
+    """Parses command-line `name=value` attack parameters, typed like their defaults."""
+    return _parse_pairs(pairs, attacks.parameters(attack), f"parameter of attack {attack}")
 
 
 def parse_hparams(learner: str, pairs: list[str]) -> tuple[tuple[str, str], ...]:

@@ -66,9 +66,15 @@ def evals_per_chunk(num_evals: int, eval_period: int, target: int = TARGET_CHUNK
     return best
 
 
-def reduce_eval(env, per_episode: dict[str, jax.Array]) -> dict[str, jax.Array]:
-    """Means over evaluation episodes, plus the return ratio and optimal rate where known."""
+def reduce_eval(env, per_episode: dict[str, jax.Array], adversary: int) -> dict[str, jax.Array]:
+    """Means over evaluation episodes, the adversary's margins, and, where the optimum
+    team return is known, the return ratio and the optimal rate."""
     out = {name: value.mean(axis=0) for name, value in per_episode.items()}
+    others = jnp.arange(env.num_agents) != adversary
+    for name in ("return_env", "return_total"):
+        values = out[name]
+        margin = values[adversary] - jnp.sum(values * others) / (env.num_agents - 1)
+        out[f"adversary_margin_{name.removeprefix('return_')}"] = margin
     optimum = getattr(env, "optimal_team_return", None)
     if optimum:
         out["return_ratio"] = out["team_return"] / optimum
@@ -82,23 +88,24 @@ def make_chunk_fn(resolved: ResolvedRun, num_periods: int):
     Returns fn(states [S], eval_roots [S]) -> (states, metrics with leaves [S, num_periods, ...]).
     """
     env, learner, cfg = resolved.env, resolved.learner, resolved.learner_config
+    attack = resolved.attack
 
     def one_seed(state, eval_root):
         def period(state, _):
             state, train = jax.lax.scan(
-                lambda s, _: learner.update(s, env, cfg),
+                lambda s, _: learner.update(s, env, cfg, attack),
                 state,
                 None,
                 length=resolved.eval_period,
             )
             eval_key = jax.random.fold_in(eval_root, state.iteration)
-            evaluation = reduce_eval(
-                env, learner.evaluate(eval_key, state, env, cfg, resolved.eval_episodes)
+            per_episode = learner.evaluate(
+                eval_key, state, env, cfg, resolved.eval_episodes, attack
             )
             row = {
                 "iteration": state.iteration,
-                "eval": evaluation,
-                "train": {"success": train["success"].mean(), "epsilon": train["epsilon"][-1]},
+                "eval": reduce_eval(env, per_episode, attack.adversary),
+                "train": jax.tree.map(lambda x: x.mean(axis=0), train),
             }
             return state, row
 
@@ -115,14 +122,14 @@ def metric_rows(resolved: ResolvedRun, chunk_metrics, seeds: list[int], perf: di
     for s, seed in enumerate(seeds):
         for e in range(host["iteration"].shape[1]):
             row: dict[str, Any] = {"iteration": int(host["iteration"][s, e]), "seed": seed}
-            for group in ("eval", "train"):
+            for group, prefix in (("eval", "eval/"), ("train", "")):
                 for name, value in host[group].items():
                     value = value[s, e]
                     if np.ndim(value) == 1 and value.shape[0] == n:
                         for agent in range(n):
-                            row[f"{group}/{name}/agent_{agent}"] = float(value[agent])
+                            row[f"{prefix}{name}/agent_{agent}"] = float(value[agent])
                     else:
-                        row[f"{group}/{name}"] = float(value)
+                        row[f"{prefix}{name}"] = float(value)
             row.update(perf)
             rows.append(row)
     return rows
@@ -204,7 +211,8 @@ def train(
     init_keys = jax.vmap(lambda k: jax.random.fold_in(k, 0))(keys)
     eval_roots = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
     env, learner, cfg = resolved.env, resolved.learner, resolved.learner_config
-    states = jax.jit(jax.vmap(lambda k: learner.init(k, env, cfg)))(init_keys)
+    attack = resolved.attack
+    states = jax.jit(jax.vmap(lambda k: learner.init(k, env, cfg, attack)))(init_keys)
 
     done = 0
     saved = store.load_checkpoint(run_dir)
@@ -223,6 +231,8 @@ def train(
     compile_s = time.perf_counter() - t0
 
     title = f"{run.learner} on {run.env_id} ({run.seeds} seeds)"
+    if run.attack:
+        title += f" under {run.attack}"
     bar = Progress(title, run.iterations, done, enabled=progress)
     columns: list[str] | None = None
     try:

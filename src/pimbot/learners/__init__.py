@@ -24,6 +24,8 @@ class LearnerDef:
     update: Callable
     evaluate: Callable
     description: str
+    has_incentives: bool
+    """Whether the learner has an incentive channel (incentive attacks need one)."""
 
 
 _LEARNERS = {
@@ -35,6 +37,7 @@ _LEARNERS = {
         pg.update,
         pg.evaluate,
         "independent REINFORCE on environment reward (no incentives)",
+        has_incentives=False,
     ),
     "lio": LearnerDef(
         "lio",
@@ -44,6 +47,7 @@ _LEARNERS = {
         lio.update,
         lio.evaluate,
         "LIO: learned incentives trained through the recipients' policy updates",
+        has_incentives=True,
     ),
 }
 

@@ -15,6 +15,7 @@ One iteration, per seed and for all agents at once (spec/lio.md):
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -22,9 +23,18 @@ import optax
 from flax import struct
 
 from pimbot import nets
+from pimbot.attacks import admo
+from pimbot.attacks.strategies import Attack
 from pimbot.envs.core import Env
 from pimbot.learners.pg import act_fn, epsilon_at, policy_step
-from pimbot.rollout import Trajectory, discounted_returns, episode_metrics, received, rollout
+from pimbot.rollout import (
+    NO_ATTACK,
+    Trajectory,
+    discounted_returns,
+    episode_metrics,
+    received,
+    rollout,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,8 +96,10 @@ class LIOState:
     incentive: dict  # stacked incentive parameters η, leaves [N, ...]
     incentive_opt: optax.OptState  # Adam state of the meta-gradient step
     cost_opt: optax.OptState  # Adam state of the cost step
+    attack_state: Any  # the attack's own state (ADMO's), else an empty dict
     key: jax.Array
     iteration: jax.Array  # int32 []
+    env_steps: jax.Array  # int32 [], environment steps taken in training
 
 
 def _modules(env: Env, cfg: LIOConfig) -> tuple[nets.MLP, nets.MLP]:
@@ -137,7 +149,7 @@ def _init_meta_opt(cfg: LIOConfig, incentive, num_agents: int):
     return optimizer.init(incentive)
 
 
-def init(key: jax.Array, env: Env, cfg: LIOConfig) -> LIOState:
+def init(key: jax.Array, env: Env, cfg: LIOConfig, attack: Attack = NO_ATTACK) -> LIOState:
     policy_module, incentive_module = _modules(env, cfg)
     policy_key, incentive_key, key = jax.random.split(key, 3)
     n = env.num_agents
@@ -149,24 +161,65 @@ def init(key: jax.Array, env: Env, cfg: LIOConfig) -> LIOState:
         incentive=incentive,
         incentive_opt=_init_meta_opt(cfg, incentive, n),
         cost_opt=optax.adam(cfg.lr_cost).init(incentive),
+        attack_state=_init_attack_state(attack, policy, incentive),
         key=key,
         iteration=jnp.zeros((), jnp.int32),
+        env_steps=jnp.zeros((), jnp.int32),
     )
+
+
+def _init_attack_state(attack: Attack, policy, incentive):
+    if isinstance(attack, admo.ADMO):
+        own = lambda stacked: jax.tree.map(lambda x: x[attack.adversary], stacked)  # noqa: E731
+        return admo.init_state(attack, own(policy), own(incentive))
+    return {}
+
+
+def emitted(env, cfg, incentive, traj: Trajectory) -> jax.Array:
+    """The incentives emitted on `traj` [T, N, N], recomputed from η (differentiable).
+
+    Learned incentives R_max·sigmoid(η_i(o_i, a_−i)), scaled and offset as the
+    attack emitted them during the episode (a fake incentive is a constant;
+    a suppressed giver emits nothing).
+    """
+    _, incentive_module = _modules(env, cfg)
+    learned = cfg.incentive_max * sigmoid_outputs(
+        incentive_module, incentive, traj.obs, traj.actions, env.num_actions
+    )
+    return learned * traj.incentive_scale[..., None] + traj.incentive_offset
 
 
 def recipient_update(env, cfg, policy, incentive, traj: Trajectory, epsilon):
-    """θ̂(η): every agent's policy step on env reward + incentives received on `traj`.
+    """θ̂(η): every agent's ordinary policy step on env reward + incentives received on `traj`.
 
+    This is how every giver models every recipient, the adversary included.
     The incentives are recomputed from η on the recorded observations and
     actions, so θ̂ is a differentiable function of η.
     """
-    policy_module, incentive_module = _modules(env, cfg)
-    given = cfg.incentive_max * sigmoid_outputs(
-        incentive_module, incentive, traj.obs, traj.actions, env.num_actions
-    )
+    policy_module, _ = _modules(env, cfg)
+    given = emitted(env, cfg, incentive, traj)
     rewards = traj.env_rewards + received(given) * traj.valid[:, None]
     return policy_step(
         policy_module, policy, traj, rewards, epsilon, cfg.lr_policy, cfg.gamma, cfg.entropy_coef
+    )
+
+
+def actual_update(env, cfg, attack: Attack, policy, traj: Trajectory, epsilon):
+    """Every agent's actual policy step: the ordinary one, except where the attack
+    changes the adversary's learning reward (self-centered) or sign (reverse, ADMO)."""
+    policy_module, _ = _modules(env, cfg)
+    got = received(traj.incentives) * traj.valid[:, None]
+    rewards = attack.learning_rewards(traj.env_rewards, got)
+    return policy_step(
+        policy_module,
+        policy,
+        traj,
+        rewards,
+        epsilon,
+        cfg.lr_policy,
+        cfg.gamma,
+        cfg.entropy_coef,
+        sign=attack.policy_sign(env.num_agents),
     )
 
 
@@ -210,6 +263,23 @@ def recipient_log_probs(env, cfg, policy, traj, received_incentives, epsilon, ne
     return jnp.take_along_axis(log_probs, new_traj.actions[..., None], axis=-1)[..., 0]
 
 
+def recipient_pullbacks(env, cfg, policy, incentive, traj, epsilon, new_traj):
+    """The two reverse passes of the second-order path, as pullback functions.
+
+    Returns:
+        (pull_incentives, pull_recipients): `pull_incentives(c [T, N, N])` pulls a
+        cotangent on the incentives emitted on τ back to η; `pull_recipients(c [T, N])`
+        pulls a cotangent on the recipients' log π_θ̂j(â_t^j|ô_t^j) on τ̂ back to the
+        incentives each received on τ.
+    """
+    given, pull_incentives = jax.vjp(lambda eta: emitted(env, cfg, eta, traj), incentive)
+    _, pull_recipients = jax.vjp(
+        lambda r: recipient_log_probs(env, cfg, policy, traj, r, epsilon, new_traj),
+        received(given),
+    )
+    return (lambda c: pull_incentives(c)[0]), (lambda c: pull_recipients(c)[0])
+
+
 def meta_gradients(env, cfg, policy, incentive, traj, epsilon, new_traj):
     """Every giver's gradient of its surrogate (`giver_objective`), by the chain rule in JAX.
 
@@ -224,29 +294,21 @@ def meta_gradients(env, cfg, policy, incentive, traj, epsilon, new_traj):
     `cfg.original_shared_incentive_updates`, [N giver, N owner, ...] (giver i's
     gradient w.r.t. every η_k, as the original's unrestricted optimizers take it).
     """
-    _, incentive_module = _modules(env, cfg)
     n = env.num_agents
-
-    def incentives(eta):
-        out = sigmoid_outputs(incentive_module, eta, traj.obs, traj.actions, env.num_actions)
-        return cfg.incentive_max * out
-
-    given, pull_incentives = jax.vjp(incentives, incentive)  # [T, N, N]
-    _, pull_recipients = jax.vjp(
-        lambda r: recipient_log_probs(env, cfg, policy, traj, r, epsilon, new_traj),
-        received(given),
+    pull_incentives, pull_recipients = recipient_pullbacks(
+        env, cfg, policy, incentive, traj, epsilon, new_traj
     )
     # J_i = Σ_t Σ_{j≠i} log π_θ̂j(â_t^j) · Ĝ_t^{i,env}: cotangent of giver i on the log-probs.
     env_returns = discounted_returns(new_traj.env_rewards, cfg.gamma) * new_traj.valid[:, None]
     others = 1.0 - jnp.eye(n)
     cotangents = env_returns.T[:, :, None] * others[:, None, :]  # [giver, T, recipient]
-    (d_received,) = jax.vmap(pull_recipients)(cotangents)  # dJ_i / d received_j(t)
+    d_received = jax.vmap(pull_recipients)(cotangents)  # dJ_i / d received_j(t)
     if cfg.original_shared_incentive_updates:
         # Giver i's objective pulled back to every giver k's incentives u[t, k, j].
-        per_giver = jnp.broadcast_to(d_received[:, :, None, :], (n,) + given.shape)
-        return jax.vmap(lambda c: pull_incentives(c)[0])(per_giver)
+        per_giver = jnp.broadcast_to(d_received[:, :, None, :], (n,) + traj.incentives.shape)
+        return jax.vmap(pull_incentives)(per_giver)
     # Giver k's own objective only, on its own row u[t, k, :].
-    return pull_incentives(jnp.swapaxes(d_received, 0, 1))[0]
+    return pull_incentives(jnp.swapaxes(d_received, 0, 1))
 
 
 def meta_gradients_reference(env, cfg, policy, incentive, traj, epsilon, new_traj):
@@ -281,8 +343,10 @@ def incentive_cost(incentive, env, cfg, traj: Trajectory) -> jax.Array:
     return jnp.sum(discount[:, None, None] * out)
 
 
-def update(state: LIOState, env: Env, cfg: LIOConfig) -> tuple[LIOState, dict[str, jax.Array]]:
-    """One LIO iteration (two rollouts)."""
+def update(
+    state: LIOState, env: Env, cfg: LIOConfig, attack: Attack = NO_ATTACK
+) -> tuple[LIOState, dict[str, jax.Array]]:
+    """One LIO iteration (two rollouts), with the attack consulted at its hooks."""
     policy_module, incentive_module = _modules(env, cfg)
     key, key_first, key_second = jax.random.split(state.key, 3)
     epsilon = epsilon_at(
@@ -290,9 +354,13 @@ def update(state: LIOState, env: Env, cfg: LIOConfig) -> tuple[LIOState, dict[st
     )
     give = give_fn(incentive_module, state.incentive, env.num_actions, cfg.incentive_max)
 
-    traj = rollout(env, key_first, act_fn(policy_module, state.policy, epsilon), give)
-    new_policy = recipient_update(env, cfg, state.policy, state.incentive, traj, epsilon)
-    new_traj = rollout(env, key_second, act_fn(policy_module, new_policy, epsilon), give)
+    act = act_fn(policy_module, state.policy, epsilon)
+    traj = rollout(env, key_first, act, give, attack, state.env_steps)
+    new_policy = actual_update(env, cfg, attack, state.policy, traj, epsilon)
+    env_steps = state.env_steps + traj.valid.sum()
+    act = act_fn(policy_module, new_policy, epsilon)
+    new_traj = rollout(env, key_second, act, give, attack, env_steps)
+    env_steps = env_steps + new_traj.valid.sum()
 
     meta_grad = meta_gradients(env, cfg, state.policy, state.incentive, traj, epsilon, new_traj)
     incentive, incentive_opt = meta_step(cfg, state.incentive, state.incentive_opt, meta_grad)
@@ -302,22 +370,78 @@ def update(state: LIOState, env: Env, cfg: LIOConfig) -> tuple[LIOState, dict[st
         cost_updates, cost_opt = optax.adam(cfg.lr_cost).update(cost_grad, state.cost_opt)
         incentive = optax.apply_updates(incentive, cost_updates)
 
-    metrics = {"epsilon": epsilon, "success": episode_metrics(env, traj)["success"]}
+    success = episode_metrics(env, traj)["success"]
+    metrics = {"train/epsilon": epsilon, "train/success": success}
+    attack_state = state.attack_state
+    if isinstance(attack, admo.ADMO):
+        new_policy, incentive, attack_state, admo_metrics = _admo_step(
+            env, cfg, attack, state, new_policy, incentive, traj, new_traj, epsilon, success
+        )
+        metrics.update(admo_metrics)
+
     new_state = LIOState(
         policy=new_policy,
         incentive=incentive,
         incentive_opt=incentive_opt,
         cost_opt=cost_opt,
+        attack_state=attack_state,
         key=key,
         iteration=state.iteration + 1,
+        env_steps=env_steps,
     )
     return new_state, metrics
 
 
-def evaluate(key: jax.Array, state: LIOState, env: Env, cfg: LIOConfig, episodes: int):
-    """Per-episode metrics [episodes, ...] of evaluation episodes (ε = 0, actions sampled)."""
+def _admo_step(env, cfg, attack, state, new_policy, incentive, traj, new_traj, epsilon, success):
+    """ADMO's update of the adversary's ω = [θ_a, η_a], replacing its own LIO update."""
+    policy_module, _ = _modules(env, cfg)
+    a = attack.adversary
+    pull_incentives, pull_recipients = recipient_pullbacks(
+        env, cfg, state.policy, state.incentive, traj, epsilon, new_traj
+    )
+
+    def adversary_log_probs(theta_a):
+        logits = policy_module.apply(theta_a, new_traj.obs[:, a])
+        log_probs = nets.mixed_log_probs(logits, epsilon)
+        taken = jnp.take_along_axis(log_probs, new_traj.actions[:, a, None], axis=1)[:, 0]
+        return taken * new_traj.valid
+
+    theta_a, eta_a, attack_state, metrics = admo.step(
+        attack,
+        state.attack_state,
+        theta=new_policy,  # the adversary's row is unchanged: its policy sign is 0
+        eta=state.incentive,
+        adversary_log_probs=adversary_log_probs,
+        emitted_fn=lambda eta, t: emitted(env, cfg, eta, t),
+        pull_recipients=pull_recipients,
+        pull_incentives=pull_incentives,
+        first_traj=traj,
+        new_traj=new_traj,
+        success=success,
+        gamma=cfg.gamma,
+        iteration=state.iteration,
+    )
+    new_policy = jax.tree.map(lambda stacked, own: stacked.at[a].set(own), new_policy, theta_a)
+    incentive = jax.tree.map(lambda stacked, own: stacked.at[a].set(own), incentive, eta_a)
+    return new_policy, incentive, attack_state, metrics
+
+
+def evaluate(
+    key: jax.Array,
+    state: LIOState,
+    env: Env,
+    cfg: LIOConfig,
+    episodes: int,
+    attack: Attack = NO_ATTACK,
+):
+    """Per-episode metrics [episodes, ...] of evaluation episodes (ε = 0, actions sampled).
+
+    The attack acts and emits during evaluation as during training.
+    """
     policy_module, incentive_module = _modules(env, cfg)
     act = act_fn(policy_module, state.policy, jnp.float32(0.0))
     give = give_fn(incentive_module, state.incentive, env.num_actions, cfg.incentive_max)
-    trajs = jax.vmap(lambda k: rollout(env, k, act, give))(jax.random.split(key, episodes))
+    trajs = jax.vmap(lambda k: rollout(env, k, act, give, attack, state.env_steps))(
+        jax.random.split(key, episodes)
+    )
     return jax.vmap(lambda t: episode_metrics(env, t))(trajs)

@@ -17,8 +17,9 @@ import optax
 from flax import struct
 
 from pimbot import nets
+from pimbot.attacks.strategies import Attack
 from pimbot.envs.core import Env
-from pimbot.rollout import Trajectory, discounted_returns, episode_metrics, rollout
+from pimbot.rollout import NO_ATTACK, Trajectory, discounted_returns, episode_metrics, rollout
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,6 +61,7 @@ class PGState:
     policy: dict  # stacked policy parameters, leaves [N, ...]
     key: jax.Array
     iteration: jax.Array  # int32 []
+    env_steps: jax.Array  # int32 [], environment steps taken in training
 
 
 def epsilon_at(iteration: jax.Array, start: float, end: float, decay_iters: int) -> jax.Array:
@@ -135,21 +137,26 @@ def act_fn(module: nets.MLP, policy, epsilon: jax.Array):
     return act
 
 
-def init(key: jax.Array, env: Env, cfg: PGConfig) -> PGState:
+def init(key: jax.Array, env: Env, cfg: PGConfig, attack: Attack = NO_ATTACK) -> PGState:
     module = nets.policy_module(cfg.policy_hidden, env.num_actions)
     init_key, key = jax.random.split(key)
     policy = nets.init_stacked(module, init_key, env.num_agents, env.obs_dim)
-    return PGState(policy=policy, key=key, iteration=jnp.zeros((), jnp.int32))
+    del attack  # no attack keeps state of its own against PG
+    zero = jnp.zeros((), jnp.int32)
+    return PGState(policy=policy, key=key, iteration=zero, env_steps=zero)
 
 
-def update(state: PGState, env: Env, cfg: PGConfig) -> tuple[PGState, dict[str, jax.Array]]:
+def update(
+    state: PGState, env: Env, cfg: PGConfig, attack: Attack = NO_ATTACK
+) -> tuple[PGState, dict[str, jax.Array]]:
     """One training iteration: play an episode, take one policy step per agent."""
     module = nets.policy_module(cfg.policy_hidden, env.num_actions)
     key, episode_key = jax.random.split(state.key)
     epsilon = epsilon_at(
         state.iteration, cfg.epsilon_start, cfg.epsilon_end, cfg.epsilon_decay_iters
     )
-    traj = rollout(env, episode_key, act_fn(module, state.policy, epsilon))
+    act = act_fn(module, state.policy, epsilon)
+    traj = rollout(env, episode_key, act, attack=attack, env_step0=state.env_steps)
     policy = policy_step(
         module,
         state.policy,
@@ -159,14 +166,30 @@ def update(state: PGState, env: Env, cfg: PGConfig) -> tuple[PGState, dict[str, 
         cfg.lr_policy,
         cfg.gamma,
         cfg.entropy_coef,
+        sign=attack.policy_sign(env.num_agents),
     )
-    metrics = {"epsilon": epsilon, "success": episode_metrics(env, traj)["success"]}
-    return PGState(policy=policy, key=key, iteration=state.iteration + 1), metrics
+    metrics = {"train/epsilon": epsilon, "train/success": episode_metrics(env, traj)["success"]}
+    new_state = PGState(
+        policy=policy,
+        key=key,
+        iteration=state.iteration + 1,
+        env_steps=state.env_steps + traj.valid.sum(),
+    )
+    return new_state, metrics
 
 
-def evaluate(key: jax.Array, state: PGState, env: Env, cfg: PGConfig, episodes: int):
+def evaluate(
+    key: jax.Array,
+    state: PGState,
+    env: Env,
+    cfg: PGConfig,
+    episodes: int,
+    attack: Attack = NO_ATTACK,
+):
     """Per-episode metrics [episodes, ...] of evaluation episodes (ε = 0, actions sampled)."""
     module = nets.policy_module(cfg.policy_hidden, env.num_actions)
     act = act_fn(module, state.policy, jnp.float32(0.0))
-    trajs = jax.vmap(lambda k: rollout(env, k, act))(jax.random.split(key, episodes))
+    trajs = jax.vmap(lambda k: rollout(env, k, act, attack=attack, env_step0=state.env_steps))(
+        jax.random.split(key, episodes)
+    )
     return jax.vmap(lambda t: episode_metrics(env, t))(trajs)
