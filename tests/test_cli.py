@@ -20,6 +20,37 @@ BAD = [
     (["train", "escape_room-v0", "--iterations", "150", "--out", "{d}"], "multiple of eval_period"),
     (["train", "escape_room-v0"], "--out"),
     (["frobnicate"], "invalid choice"),
+    (["train", "escape_room-v0", "--attack", "nope", "--out", "{d}"], "attack: unknown attack"),
+    (
+        ["train", "escape_room-v0", "--attack", "admo", "--ap", "adversary=2", "--out", "{d}"],
+        "adversary: must be an agent index in [0, 1]",
+    ),
+    (
+        ["train", "escape_room-v0", "--attack", "admo", "--ap", "budget=-1", "--out", "{d}"],
+        "budget: must be ≥ 0",
+    ),
+    (
+        ["train", "escape_room-v0", "--attack", "admo", "--ap", "mode=sneaky", "--out", "{d}"],
+        "mode: unknown ADMO mode 'sneaky'; allowed: stealthy, disrupt",
+    ),
+    (
+        ["train", "escape_room-v0", "--attack", "bypass", "--ap", "colour=1", "--out", "{d}"],
+        "colour: not a parameter of attack bypass",
+    ),
+    (
+        [
+            "train",
+            "escape_room-v0",
+            "--learner",
+            "pg",
+            "--attack",
+            "fake_incentive",
+            "--out",
+            "{d}",
+        ],
+        "no incentive channel",
+    ),
+    (["train", "escape_room-v0", "--ap", "mode=disrupt", "--out", "{d}"], "without --attack"),
 ]
 
 
@@ -41,6 +72,14 @@ def test_envs_lists_every_environment_with_parameters(capsys):
     for env_id in ("escape_room-v0", "ipd-v0", "stag_hunt-v0", "stag_hunt_matrix-v0"):
         assert env_id in text
     assert "min_at_lever = 1" in text and "n_players = 2" in text
+
+
+def test_attacks_lists_attacks_with_parameters(capsys):
+    assert cli.main(["attacks"]) == 0
+    text = capsys.readouterr().out
+    for name in ("self_centered", "fake_incentive", "bypass", "reverse", "admo"):
+        assert name in text
+    assert "toggle_period = 0" in text and "budget = 10.0" in text
 
 
 def test_learners_lists_hyperparameters(capsys):

@@ -1,0 +1,232 @@
+"""Attacks: each hook does exactly what spec/attacks.md says, under jit and vmap."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pimbot import attacks, envs
+from pimbot.attacks import admo
+from pimbot.learners import lio, pg
+from pimbot.rollout import received, rollout
+
+ENV = envs.make("escape_room-v0", n_agents=3, min_at_lever=1)
+CFG = lio.default_config(ENV)
+PM, IM = lio._modules(ENV, CFG)
+
+
+# --- KKT (Pareto) weights -------------------------------------------------------------
+
+
+def _brute_force_objective(g1, g2, c, points=20001):
+    rest = 1.0 - c.sum()
+    x = np.linspace(0.0, rest, points)
+    alphas = np.stack([c[0] + x, c[1] + rest - x], axis=1)
+    combined = alphas[:, :1] * g1[None] + alphas[:, 1:] * g2[None]
+    return 0.5 * np.min(np.sum(combined**2, axis=1))
+
+
+def _check_kkt(g1, g2, c):
+    alpha = np.asarray(admo.kkt_weights(jnp.asarray(g1), jnp.asarray(g2), jnp.asarray(c)))
+    assert alpha.sum() == pytest.approx(1.0, abs=1e-5)
+    assert np.all(alpha >= c - 1e-5)
+    value = 0.5 * np.sum((alpha[0] * g1 + alpha[1] * g2) ** 2)
+    best = _brute_force_objective(g1, g2, c)
+    assert value <= best + 1e-4 * max(1.0, best), (alpha, value, best)
+
+
+bounds = st.tuples(st.floats(0.05, 0.45), st.floats(0.05, 0.45)).map(np.array)
+vectors = st.lists(st.floats(-3, 3), min_size=4, max_size=4).map(lambda v: np.array(v, np.float32))
+
+
+@settings(max_examples=60, deadline=None)
+@given(g1=vectors, g2=vectors, c=bounds)
+def test_kkt_weights_match_brute_force(g1, g2, c):
+    _check_kkt(g1, g2, c.astype(np.float32))
+
+
+@settings(max_examples=30, deadline=None)
+@given(g=vectors, scale=st.floats(-3, 3), c=bounds)
+def test_kkt_weights_parallel_and_opposite_gradients(g, scale, c):
+    _check_kkt(g, (scale * g).astype(np.float32), c.astype(np.float32))
+
+
+def test_kkt_weights_zero_gradients_stay_feasible():
+    c = np.array([0.2, 0.3], np.float32)
+    zero = np.zeros(4, np.float32)
+    for g1, g2 in ((zero, zero), (zero, np.ones(4, np.float32)), (np.ones(4, np.float32), zero)):
+        _check_kkt(g1, g2, c)
+    # A zero gradient for one objective puts all free weight on it.
+    alpha = np.asarray(admo.kkt_weights(jnp.zeros(4), jnp.ones(4), jnp.asarray(c)))
+    np.testing.assert_allclose(alpha, [0.7, 0.3], atol=1e-5)
+
+
+# --- strategy hooks -------------------------------------------------------------------
+
+
+def _play(attack, seed=0, policy_seed=0):
+    state = lio.init(jax.random.PRNGKey(policy_seed), ENV, CFG, attack)
+    give = lio.give_fn(IM, state.incentive, ENV.num_actions, CFG.incentive_max)
+    act = pg.act_fn(PM, state.policy, jnp.float32(0.5))
+    return jax.jit(lambda k: rollout(ENV, k, act, give, attack))(jax.random.PRNGKey(seed))
+
+
+def test_bypass_always_plays_the_idle_action():
+    attack = attacks.make("bypass", 3, adversary=1)
+    for seed in range(5):
+        traj = _play(attack, seed)
+        actions = np.asarray(traj.actions)[np.asarray(traj.valid)]
+        assert np.all(actions[:, 1] == ENV.idle_action)
+    clean = np.concatenate([np.asarray(_play(attacks.Attack(), s).actions[:, 1]) for s in range(5)])
+    assert np.any(clean != ENV.idle_action)  # the hook, not the policy, does it
+
+
+def test_bypass_toggle_alternates_every_k_environment_steps():
+    attack = attacks.make("bypass", 3, toggle_period=3)
+    actions = jnp.array([2, 2, 2])
+    played = [int(attack.act(actions, ENV.idle_action, jnp.int32(t))[0]) for t in range(9)]
+    assert played == [1, 1, 1, 2, 2, 2, 1, 1, 1]
+
+
+def test_recipients_receive_exactly_c_under_fake_incentive():
+    attack = attacks.make("fake_incentive", 3, adversary=2, amount=50.0)
+    traj = _play(attack)
+    valid = np.asarray(traj.valid)
+    inc = np.asarray(traj.incentives)[valid]
+    np.testing.assert_array_equal(inc[:, 2, :2], 50.0)
+    np.testing.assert_array_equal(inc[:, 2, 2], 0.0)
+    # The honest givers' incentives stay learned (inside [0, R_max]).
+    assert inc[:, :2].max() <= CFG.incentive_max
+    # In the modelled recipient updates the fake incentive is a constant: no gradient to η_2.
+    grads = jax.grad(lambda eta: lio.emitted(ENV, CFG, eta, traj)[:, 2].sum())(
+        lio.init(jax.random.PRNGKey(0), ENV, CFG).incentive
+    )
+    assert all(float(jnp.abs(g).max()) == 0.0 for g in jax.tree.leaves(grads))
+
+
+def test_budget_zeroes_incentives_once_exceeded():
+    attack = attacks.make("admo", 3, adversary=0, budget=1.0)
+    given_so_far = jnp.zeros((3, 3))
+    scale, _ = attack.emit(3, given_so_far)
+    assert float(scale[0]) == 1.0
+    scale, _ = attack.emit(3, given_so_far.at[0, 1].set(1.5))
+    assert float(scale[0]) == 0.0 and float(scale[1]) == 1.0
+    # In an episode: once a's cumulative incentives exceed B_a it emits nothing.
+    for seed in range(3):
+        traj = _play(attack, seed)
+        given = np.asarray(traj.incentives[:, 0].sum(axis=1))
+        cumulative = np.concatenate([[0.0], np.cumsum(given)[:-1]])
+        assert np.all(given[cumulative > 1.0] == 0.0)
+
+
+def _policies_equal(a, b, agent, atol=1e-7):
+    """Agent `agent`'s parameters agree (up to float rounding of equal computations)."""
+    return all(
+        np.allclose(np.asarray(x[agent]), np.asarray(y[agent]), rtol=1e-5, atol=atol)
+        for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True)
+    )
+
+
+def _actual_and_modelled(attack, seed=3):
+    state = lio.init(jax.random.PRNGKey(seed), ENV, CFG)
+    traj = _play(attack, seed, policy_seed=seed)
+    eps = jnp.float32(0.3)
+    actual = jax.jit(lio.actual_update, static_argnums=(0, 1, 2))(
+        ENV, CFG, attack, state.policy, traj, eps
+    )
+    modelled = jax.jit(lio.recipient_update, static_argnums=(0, 1))(
+        ENV, CFG, state.policy, state.incentive, traj, eps
+    )
+    return state, traj, eps, actual, modelled
+
+
+def test_self_centered_step_ignores_incentives_but_is_modelled_as_ordinary():
+    attack = attacks.make("self_centered", 3, adversary=0)
+    state, traj, eps, actual, modelled = _actual_and_modelled(attack)
+    assert float(received(traj.incentives)[:, 0].sum()) > 0
+    env_only = pg.policy_step(
+        PM, state.policy, traj, traj.env_rewards, eps, CFG.lr_policy, CFG.gamma, CFG.entropy_coef
+    )
+    assert _policies_equal(actual, env_only, 0)  # the adversary learns from env reward only
+    assert _policies_equal(actual, modelled, 1) and _policies_equal(actual, modelled, 2)
+    assert not _policies_equal(actual, modelled, 0)  # the others model it with incentives
+
+
+def test_reverse_flips_the_sign_of_the_adversarys_step():
+    attack = attacks.make("reverse", 3, adversary=1)
+    state, _, _, actual, modelled = _actual_and_modelled(attack)
+    for x, y, p in zip(
+        *(jax.tree.leaves(t) for t in (actual, modelled, state.policy)), strict=True
+    ):
+        step_actual, step_modelled = x[1] - p[1], y[1] - p[1]
+        assert np.abs(step_modelled).max() > 1e-6
+        np.testing.assert_allclose(step_actual, -step_modelled, rtol=1e-3, atol=1e-7)
+        np.testing.assert_allclose(x[0], y[0], rtol=1e-5, atol=1e-7)
+
+
+def test_admo_freezes_the_learners_own_step_for_the_adversary():
+    attack = attacks.make("admo", 3, adversary=2)
+    state, _, _, actual, _ = _actual_and_modelled(attack)
+    assert _policies_equal(actual, state.policy, 2)
+
+
+# --- every attack under jit and vmap ------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("name", "params"),
+    [
+        ("self_centered", {}),
+        ("fake_incentive", {}),
+        ("bypass", {"toggle_period": 2}),
+        ("reverse", {}),
+        ("admo", {"mode": "stealthy"}),
+        ("admo", {"mode": "disrupt", "budget": 0.5}),
+    ],
+)
+def test_every_attack_runs_under_jit_and_vmap_over_seeds(name, params):
+    env = envs.make("escape_room-v0")
+    cfg = lio.default_config(env)
+    attack = attacks.make(name, 2, **params)
+    keys = jax.random.split(jax.random.PRNGKey(0), 3)
+    states = jax.vmap(lambda k: lio.init(k, env, cfg, attack))(keys)
+
+    @jax.jit
+    def two_iterations(states):
+        def body(s, _):
+            return jax.vmap(lambda x: lio.update(x, env, cfg, attack))(s)
+
+        return jax.lax.scan(body, states, None, length=2)
+
+    states, metrics = two_iterations(states)
+    assert int(states.iteration[0]) == 2
+    for leaf in jax.tree.leaves(states.policy):
+        assert bool(jnp.all(jnp.isfinite(leaf)))
+    if name == "admo":
+        alpha = np.asarray(metrics["admo/alpha_1"]) + np.asarray(metrics["admo/alpha_2"])
+        np.testing.assert_allclose(alpha, 1.0, atol=1e-5)
+        assert np.all(np.asarray(metrics["admo/c_1"]) >= 0.05)
+
+
+def test_pg_supports_policy_attacks():
+    env = envs.make("escape_room-v0")
+    cfg = pg.default_config(env)
+    for attack in (attacks.make("bypass", 2), attacks.make("reverse", 2)):
+        state = pg.init(jax.random.PRNGKey(0), env, cfg, attack)
+        state, _ = jax.jit(pg.update, static_argnums=(1, 2, 3))(state, env, cfg, attack)
+        assert int(state.iteration) == 1
+
+
+def test_admo_moves_only_the_adversarys_parameters_beyond_the_lio_step():
+    env = envs.make("escape_room-v0")
+    cfg = dataclasses.replace(lio.default_config(env), lr_cost=0.0)
+    attack = attacks.make("admo", 2, adversary=0)
+    state = lio.init(jax.random.PRNGKey(1), env, cfg, attack)
+    new_state, metrics = jax.jit(lio.update, static_argnums=(1, 2, 3))(state, env, cfg, attack)
+    moved = [not _policies_equal(new_state.incentive, state.incentive, i) for i in range(2)]
+    assert all(moved)
+    assert float(metrics["admo/skipped"]) == 0.0
