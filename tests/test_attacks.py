@@ -55,11 +55,30 @@ def test_kkt_weights_parallel_and_opposite_gradients(g, scale, c):
     _check_kkt(g, (scale * g).astype(np.float32), c.astype(np.float32))
 
 
+@settings(max_examples=60, deadline=None)
+@given(g1=vectors, g2=vectors, c=bounds, parallel=st.sampled_from([None, 0.0, 1.0, -1.0, 2.5]))
+def test_closed_form_kkt_weights_equal_the_pseudo_inverse_solution(g1, g2, c, parallel):
+    if parallel is not None:
+        g2 = (parallel * g1).astype(np.float32)
+    args = (jnp.asarray(g1), jnp.asarray(g2), jnp.asarray(c.astype(np.float32)))
+    fast, reference = admo.kkt_weights(*args), admo.kkt_weights_pinv(*args)
+    value = lambda a: 0.5 * np.sum((a[0] * g1 + a[1] * g2) ** 2)  # noqa: E731
+    # Equal weights, or (degenerate directions) equally good ones.
+    assert np.allclose(fast, reference, atol=1e-3) or value(fast) <= value(reference) + 1e-4 * max(
+        1.0, value(reference)
+    )
+
+
 def test_kkt_weights_zero_gradients_stay_feasible():
     c = np.array([0.2, 0.3], np.float32)
     zero = np.zeros(4, np.float32)
     for g1, g2 in ((zero, zero), (zero, np.ones(4, np.float32)), (np.ones(4, np.float32), zero)):
         _check_kkt(g1, g2, c)
+        np.testing.assert_allclose(
+            admo.kkt_weights(g1, g2, jnp.asarray(c)),
+            admo.kkt_weights_pinv(g1, g2, jnp.asarray(c)),
+            atol=1e-5,
+        )
     # A zero gradient for one objective puts all free weight on it.
     alpha = np.asarray(admo.kkt_weights(jnp.zeros(4), jnp.ones(4), jnp.asarray(c)))
     np.testing.assert_allclose(alpha, [0.7, 0.3], atol=1e-5)

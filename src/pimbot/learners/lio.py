@@ -294,10 +294,14 @@ def meta_gradients(env, cfg, policy, incentive, traj, epsilon, new_traj):
     `cfg.original_shared_incentive_updates`, [N giver, N owner, ...] (giver i's
     gradient w.r.t. every η_k, as the original's unrestricted optimizers take it).
     """
+    pullbacks = recipient_pullbacks(env, cfg, policy, incentive, traj, epsilon, new_traj)
+    return meta_gradients_from(env, cfg, pullbacks, traj, new_traj)
+
+
+def meta_gradients_from(env, cfg, pullbacks, traj, new_traj):
+    """`meta_gradients` from already computed `recipient_pullbacks` (shared with ADMO)."""
     n = env.num_agents
-    pull_incentives, pull_recipients = recipient_pullbacks(
-        env, cfg, policy, incentive, traj, epsilon, new_traj
-    )
+    pull_incentives, pull_recipients = pullbacks
     # J_i = Σ_t Σ_{j≠i} log π_θ̂j(â_t^j) · Ĝ_t^{i,env}: cotangent of giver i on the log-probs.
     env_returns = discounted_returns(new_traj.env_rewards, cfg.gamma) * new_traj.valid[:, None]
     others = 1.0 - jnp.eye(n)
@@ -362,7 +366,10 @@ def update(
     new_traj = rollout(env, key_second, act, give, attack, env_steps)
     env_steps = env_steps + new_traj.valid.sum()
 
-    meta_grad = meta_gradients(env, cfg, state.policy, state.incentive, traj, epsilon, new_traj)
+    pullbacks = recipient_pullbacks(
+        env, cfg, state.policy, state.incentive, traj, epsilon, new_traj
+    )
+    meta_grad = meta_gradients_from(env, cfg, pullbacks, traj, new_traj)
     incentive, incentive_opt = meta_step(cfg, state.incentive, state.incentive_opt, meta_grad)
     cost_opt = state.cost_opt
     if cfg.lr_cost > 0:
@@ -375,7 +382,17 @@ def update(
     attack_state = state.attack_state
     if isinstance(attack, admo.ADMO):
         new_policy, incentive, attack_state, admo_metrics = _admo_step(
-            env, cfg, attack, state, new_policy, incentive, traj, new_traj, epsilon, success
+            env,
+            cfg,
+            attack,
+            state,
+            pullbacks,
+            new_policy,
+            incentive,
+            traj,
+            new_traj,
+            epsilon,
+            success,
         )
         metrics.update(admo_metrics)
 
@@ -392,13 +409,13 @@ def update(
     return new_state, metrics
 
 
-def _admo_step(env, cfg, attack, state, new_policy, incentive, traj, new_traj, epsilon, success):
+def _admo_step(
+    env, cfg, attack, state, pullbacks, new_policy, incentive, traj, new_traj, epsilon, success
+):
     """ADMO's update of the adversary's ω = [θ_a, η_a], replacing its own LIO update."""
     policy_module, _ = _modules(env, cfg)
     a = attack.adversary
-    pull_incentives, pull_recipients = recipient_pullbacks(
-        env, cfg, state.policy, state.incentive, traj, epsilon, new_traj
-    )
+    pull_incentives, pull_recipients = pullbacks
 
     def adversary_log_probs(theta_a):
         logits = policy_module.apply(theta_a, new_traj.obs[:, a])
