@@ -19,6 +19,7 @@ adversary's actual behaviour changes. No learner is copied per attack.
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import ClassVar
 
 import jax
@@ -173,5 +174,5 @@ def _check_number(name: str, value) -> None:
 
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise InvalidParameter(f"{name}: must be a number, got {value!r}")
-    if not jnp.isfinite(value):
+    if not math.isfinite(value):
         raise InvalidParameter(f"{name}: must be a finite number, got {value!r}")
