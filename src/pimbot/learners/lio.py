@@ -189,6 +189,24 @@ def emitted(env, cfg, incentive, traj: Trajectory) -> jax.Array:
     return learned * traj.incentive_scale[..., None] + traj.incentive_offset
 
 
+def ordinary_step(env, cfg, policy, traj: Trajectory, received_incentives, epsilon):
+    """Every agent's ordinary policy step on env reward + `received_incentives` [T, N]."""
+    policy_module, _ = _modules(env, cfg)
+    rewards = traj.env_rewards + received_incentives * traj.valid[:, None]
+    return policy_step(
+        policy_module, policy, traj, rewards, epsilon, cfg.lr_policy, cfg.gamma, cfg.entropy_coef
+    )
+
+
+def taken_log_probs(env, cfg, policy, traj: Trajectory) -> jax.Array:
+    """log π(a_t^j | o_t^j) [T, N] of the actions taken in `traj`, plain softmax (as the
+    original's updated policy inside the incentive gradient)."""
+    policy_module, _ = _modules(env, cfg)
+    logits = jax.vmap(policy_module.apply, in_axes=(0, 1), out_axes=1)(policy, traj.obs)
+    log_probs = jax.nn.log_softmax(logits)  # [T, N, A]
+    return jnp.take_along_axis(log_probs, traj.actions[..., None], axis=-1)[..., 0]
+
+
 def recipient_update(env, cfg, policy, incentive, traj: Trajectory, epsilon):
     """θ̂(η): every agent's ordinary policy step on env reward + incentives received on `traj`.
 
@@ -196,11 +214,8 @@ def recipient_update(env, cfg, policy, incentive, traj: Trajectory, epsilon):
     The incentives are recomputed from η on the recorded observations and
     actions, so θ̂ is a differentiable function of η.
     """
-    policy_module, _ = _modules(env, cfg)
-    given = emitted(env, cfg, incentive, traj)
-    rewards = traj.env_rewards + received(given) * traj.valid[:, None]
-    return policy_step(
-        policy_module, policy, traj, rewards, epsilon, cfg.lr_policy, cfg.gamma, cfg.entropy_coef
+    return ordinary_step(
+        env, cfg, policy, traj, received(emitted(env, cfg, incentive, traj)), epsilon
     )
 
 
@@ -233,11 +248,8 @@ def giver_objective(
         giver: i.
         traj, new_traj: τ (played with θ) and τ̂ (played with θ̂).
     """
-    policy_module, _ = _modules(env, cfg)
     new_policy = recipient_update(env, cfg, policy, incentive, traj, epsilon)
-    logits = jax.vmap(policy_module.apply, in_axes=(0, 1), out_axes=1)(new_policy, new_traj.obs)
-    log_probs = jax.nn.log_softmax(logits)  # [T, N, A]
-    taken = jnp.take_along_axis(log_probs, new_traj.actions[..., None], axis=-1)[..., 0]
+    taken = taken_log_probs(env, cfg, new_policy, new_traj)
     env_returns = discounted_returns(new_traj.env_rewards[:, giver], cfg.gamma)  # [T]
     recipients = (jnp.arange(env.num_agents) != giver).astype(jnp.float32)
     mask = new_traj.valid.astype(jnp.float32)
@@ -253,14 +265,8 @@ def own_giver_objective(own_incentive, giver, env, cfg, policy, incentive, traj,
 def recipient_log_probs(env, cfg, policy, traj, received_incentives, epsilon, new_traj):
     """log π_θ̂j(â_t^j | ô_t^j) [T, N] on τ̂, with θ̂ the policy step on τ taken on
     env reward + `received_incentives` [T, N] (plain softmax, as the original)."""
-    policy_module, _ = _modules(env, cfg)
-    rewards = traj.env_rewards + received_incentives * traj.valid[:, None]
-    new_policy = policy_step(
-        policy_module, policy, traj, rewards, epsilon, cfg.lr_policy, cfg.gamma, cfg.entropy_coef
-    )
-    logits = jax.vmap(policy_module.apply, in_axes=(0, 1), out_axes=1)(new_policy, new_traj.obs)
-    log_probs = jax.nn.log_softmax(logits)
-    return jnp.take_along_axis(log_probs, new_traj.actions[..., None], axis=-1)[..., 0]
+    new_policy = ordinary_step(env, cfg, policy, traj, received_incentives, epsilon)
+    return taken_log_probs(env, cfg, new_policy, new_traj)
 
 
 def recipient_pullbacks(env, cfg, policy, incentive, traj, epsilon, new_traj):
