@@ -23,6 +23,7 @@ import numpy as np  # noqa: E402
 from pimbot.analysis.curves import load_curve, mean_and_band  # noqa: E402
 from pimbot.analysis.metrics import bootstrap_ci  # noqa: E402
 from pimbot.experiment import store  # noqa: E402
+from pimbot.experiment.runner import summarize  # noqa: E402
 
 CONDITIONS = [
     "clean",
@@ -64,16 +65,10 @@ def load_runs(runs_dir: Path) -> list[Run]:
         if condition == "admo":
             condition = f"admo_{identity['attack_params']['mode']}"
         adversary = identity["attack_params"].get("adversary", 0) if identity["attack"] else 0
+        # Final metrics and convergence recomputed from metrics.csv (the primary record).
+        summary = {**store.read_json(path / store.SUMMARY), **summarize(path)}
         runs.append(
-            Run(
-                path,
-                env,
-                condition,
-                adversary,
-                config["env"]["num_agents"],
-                store.read_json(path / store.SUMMARY),
-                config,
-            )
+            Run(path, env, condition, adversary, config["env"]["num_agents"], summary, config)
         )
     return runs
 
@@ -98,9 +93,7 @@ def diff_ci(a: np.ndarray, b: np.ndarray, resamples: int = 10_000, seed: int = 0
 
 def convergence(run: Run) -> tuple[float | None, float | None, int]:
     conv = run.summary["convergence"]
-    crossings = sorted(c for c in conv["first_crossing_per_seed"] if c is not None)
-    first = crossings[len(crossings) // 2] if len(crossings) * 2 > len(conv["per_seed"]) else None
-    return conv["median"], first, conv["converged_seeds"]
+    return conv["median"], conv["first_crossing_median"], conv["converged_seeds"]
 
 
 def results_rows(runs: list[Run]) -> list[dict]:

@@ -6,6 +6,7 @@ from pathlib import Path
 
 from pimbot.analysis.plots import run_label
 from pimbot.experiment import store
+from pimbot.experiment.runner import summarize
 
 
 def _cell(summary: dict, column: str) -> str:
@@ -24,10 +25,11 @@ def summary_table(run_dirs: list[Path]) -> str:
         "| --- | ---: | ---: | --- | --- | ---: | --- | ---: | ---: |",
     ]
     for run_dir in run_dirs:
-        summary = store.read_json(run_dir / store.SUMMARY)
+        # Final metrics and convergence recomputed from metrics.csv (the primary record).
+        summary = {**store.read_json(run_dir / store.SUMMARY), **summarize(run_dir)}
         conv = summary["convergence"]
-        crossings = sorted(c for c in conv["first_crossing_per_seed"] if c is not None)
-        first = f"{crossings[len(crossings) // 2]:.0f}" if crossings else "–"
+        crossing = conv["first_crossing_median"]
+        first = "–" if crossing is None else f"{crossing:.0f}"
         median = "–" if conv["median"] is None else f"{conv['median']:.0f}"
         iqr = "[" + ", ".join("∞" if q is None else f"{q:.0f}" for q in conv["iqr"]) + "]"
         lines.append(

@@ -288,14 +288,16 @@ def summarize(run_dir: str | Path) -> dict[str, Any]:
         converged.append(c)
         first.append(f)
     reached = [c for c in converged if c is not None]
-    # Seeds that never converge count as +inf for the median.
+    # Seeds that never converge count as +inf: a median or quartile that falls on
+    # one of them is "never" (None), not the largest finite value.
     ranked = np.array([c if c is not None else np.inf for c in converged], dtype=float)
-    median = float(np.quantile(ranked, 0.5, method="lower")) if ranked.size else None
-    q25, q75 = (
-        np.quantile(ranked, [0.25, 0.75], method="nearest").tolist()
-        if ranked.size
-        else [None, None]
-    )
+
+    def finite_or_none(value: float) -> float | None:
+        return float(value) if np.isfinite(value) else None
+
+    with np.errstate(invalid="ignore"):
+        median = finite_or_none(np.median(ranked)) if ranked.size else None
+        quartiles = np.quantile(ranked, [0.25, 0.75]) if ranked.size else [np.inf, np.inf]
     perf = [float(r["perf/iters_per_s"]) for r in rows if "perf/iters_per_s" in r]
     return {
         "finished": True,
@@ -312,8 +314,13 @@ def summarize(run_dir: str | Path) -> dict[str, Any]:
             "per_seed": converged,
             "first_crossing_per_seed": first,
             "converged_seeds": len(reached),
-            "median": None if median is None or math.isinf(median) else median,
-            "iqr": [None if q is None or math.isinf(q) else q for q in (q25, q75)],
+            "median": median,
+            "iqr": [finite_or_none(q) for q in quartiles],
+            "first_crossing_median": finite_or_none(
+                np.median([f if f is not None else np.inf for f in first])
+            )
+            if first
+            else None,
         },
         "iters_per_s_mean": float(np.mean(perf)) if perf else None,
     }
