@@ -27,7 +27,7 @@ class Progress:
 
             self._bar = RichProgress(
                 TextColumn("{task.description}"),
-                BarColumn(),
+                BarColumn(bar_width=12),
                 MofNCompleteColumn(),
                 TextColumn("{task.fields[rate]} it/s  success {task.fields[success]}"),
                 TimeRemainingColumn(),

@@ -230,9 +230,9 @@ def train(
     chunk_fn = make_chunk_fn(resolved, per_chunk).lower(states, eval_roots).compile()
     compile_s = time.perf_counter() - t0
 
-    title = f"{run.learner} on {run.env_id} ({run.seeds} seeds)"
+    title = f"{run.learner} {run.env_id} ×{run.seeds}"
     if run.attack:
-        title += f" under {run.attack}"
+        title += f" {run.attack}"
     bar = Progress(title, run.iterations, done, enabled=progress)
     columns: list[str] | None = None
     try:
