@@ -1,6 +1,7 @@
 """The `pimbot` command line.
 
     pimbot train ENV_ID [name=value ...] --learner lio --seeds 10 --iterations 50000 --out DIR
+    pimbot profile --env ENV_ID [name=value ...] --controller benign|admo --duration S --out DIR
     pimbot envs
     pimbot learners
 
@@ -36,6 +37,80 @@ def _int_arg(name: str, low: int):
         return value
 
     return parse
+
+
+def _float_arg(name: str, low: float):
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise UsageError(f"{name}: must be a number > {low:g}, got {text!r}") from None
+        if not value > low:
+            raise UsageError(f"{name}: must be a number > {low:g}, got {value:g}")
+        return value
+
+    return parse
+
+
+def _cpu_list(text: str) -> tuple[int, ...]:
+    """`0,2-3` -> (0, 2, 3)."""
+    cpus: list[int] = []
+    try:
+        for part in text.split(","):
+            low, _, high = part.partition("-")
+            cpus += range(int(low), int(high or low) + 1)
+    except ValueError:
+        raise UsageError(f"pin_cpu: must be a CPU list like 0,2-3, got {text!r}") from None
+    if not cpus or min(cpus) < 0:
+        raise UsageError(f"pin_cpu: must be a CPU list like 0,2-3, got {text!r}")
+    return tuple(cpus)
+
+
+def _add_profile_parser(commands) -> None:
+    profile = commands.add_parser(
+        "profile", help="decision latency, update cost and hardware traces (benign vs ADMO)"
+    )
+    profile.add_argument("--env", required=True, help="environment id (see `pimbot envs`)")
+    profile.add_argument(
+        "env_params", nargs="*", metavar="name=value", help="environment parameters"
+    )
+    profile.add_argument(
+        "--controller", default="benign", help="benign (plain LIO) or admo (ADMO on agent 0)"
+    )
+    profile.add_argument(
+        "--duration",
+        type=_float_arg("duration", 0),
+        default=20.0,
+        help="steady-state seconds per controller",
+    )
+    profile.add_argument(
+        "--hidden",
+        type=_int_arg("hidden", 1),
+        nargs="+",
+        default=[256, 128],
+        help="hidden widths of the policy and incentive MLPs",
+    )
+    profile.add_argument(
+        "--action-repeat", type=_int_arg("action_repeat", 1), default=2, help="env steps/decision"
+    )
+    profile.add_argument(
+        "--update-every",
+        type=_int_arg("update_every", 1),
+        default=100,
+        help="decisions between learner update steps",
+    )
+    profile.add_argument("--pin-cpu", type=_cpu_list, default=None, help="CPU list, e.g. 0,2-3")
+    profile.add_argument(
+        "--sample-hz", type=_float_arg("sample_hz", 0), default=1.0, help="sensor sampling rate"
+    )
+    profile.add_argument("--seed", type=_int_arg("seed", 0), default=0, help="root PRNG seed")
+    profile.add_argument(
+        "--paired", action="store_true", help="benign then ADMO, everything else identical"
+    )
+    profile.add_argument(
+        "--truncate-idle-gpu", action="store_true", help="cut long zero-GPU stretches in the figure"
+    )
+    profile.add_argument("--out", required=True, help="run directory (created)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -107,6 +182,7 @@ def build_parser() -> argparse.ArgumentParser:
     plot.add_argument("run_dirs", nargs="+", help="run directories")
     plot.add_argument("--out", required=True, help="PNG file to write")
 
+    _add_profile_parser(commands)
     commands.add_parser("envs", help="list environments and their parameters")
     commands.add_parser("learners", help="list learners and their hyperparameters")
     commands.add_parser("attacks", help="list attacks and their parameters")
@@ -223,6 +299,66 @@ def cmd_plot(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_profile(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from pimbot.experiment.config import parse_env_params
+    from pimbot.profiling import CONTROLLERS, ProfileConfig, profile, samplers
+
+    if args.controller not in CONTROLLERS:
+        raise UsageError(
+            f"controller: unknown controller {args.controller!r}; allowed: {', '.join(CONTROLLERS)}"
+        )
+    config = ProfileConfig(
+        env_id=args.env,
+        env_params=parse_env_params(args.env, args.env_params),
+        controller=args.controller,
+        duration_s=args.duration,
+        hidden=tuple(args.hidden),
+        action_repeat=args.action_repeat,
+        update_every=args.update_every,
+        seed=args.seed,
+    )
+    if args.pin_cpu is not None:
+        try:
+            samplers.pin_cpus(list(args.pin_cpu))
+        except OSError as error:
+            raise UsageError(f"pin_cpu: cannot pin to {list(args.pin_cpu)}: {error}") from None
+    summary = profile(
+        config,
+        Path(args.out),
+        paired=args.paired,
+        sample_hz=args.sample_hz,
+        truncate_idle_gpu=args.truncate_idle_gpu,
+    )
+    runs = {c: summary[c] for c in CONTROLLERS} if args.paired else {args.controller: summary}
+    for name, run in runs.items():
+        lat, upd = run["latency_ms"], run["update_ms"]
+        print(
+            f"{name}: latency p50 {lat['p50']:.3f} ms, p95 {lat['p95']:.3f} ms, "
+            f"p99 {lat['p99']:.3f} ms, max {lat['max']:.3f} ms (n={lat['count']}); "
+            f"{run['decisions_per_s']:.0f} decisions/s; update p50 "
+            + (f"{upd['p50']:.2f} ms (n={upd['count']})" if upd["count"] else "n/a")
+            + f"; live sensors: {', '.join(run['live_sensors']) or 'none'}"
+        )
+    if args.paired:
+        comp = summary["comparison"]
+        parts = [
+            f"{label} {comp[key]['diff']:+.3f} ms ({comp[key]['percent']:+.1f} %)"
+            for key, label in (("latency_mean_ms", "decision"), ("update_p50_ms", "update step"))
+            if comp[key] is not None
+        ]
+        if comp["update_per_decision_ms"] is not None:
+            amortized = comp["update_per_decision_ms"]
+            parts.append(
+                f"update amortized per decision {amortized['ms']:+.4f} ms "
+                f"({amortized['percent_of_decision']:+.1f} % of a benign decision)"
+            )
+        print("ADMO overhead: " + ", ".join(parts))
+    print(f"wrote {args.out}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     from pimbot.envs.core import InvalidParameter
 
@@ -238,6 +374,9 @@ def main(argv: list[str] | None = None) -> int:
             return cmd_table(args)
         if args.command == "plot":
             return cmd_plot(args)
+        if args.command == "profile":
+            jax_setup.enable_compilation_cache()
+            return cmd_profile(args)
         jax_setup.use_all_cpu_cores()
         jax_setup.enable_compilation_cache()
         return cmd_train(args)

@@ -1,0 +1,246 @@
+"""On-device profiling: tegrastats parsing, sensor fallbacks, RAPL wrap-around, end to end."""
+
+import csv
+import json
+
+import pytest
+
+from pimbot import cli
+from pimbot.profiling import report, samplers, tegrastats
+
+ORIN_JP6 = (
+    "RAM 2456/7620MB (lfb 2x4MB) SWAP 0/3810MB (cached 0MB) "
+    "CPU [2%@1510,1%@1510,0%@1510,0%@1510,off,off] GR3D_FREQ 12%@[1300,1300] "
+    "cpu@47.5C soc2@45.9C soc0@46.2C gpu@46.9C tj@47.5C soc1@46.5C "
+    "VDD_IN 4787mW/4787mW VDD_CPU_GPU_CV 598mW/598mW VDD_SOC 1435mW/1435mW"
+)
+JP7 = (
+    "11-20-2025 10:00:01 RAM 5120/125772MB (lfb 10x4MB) SWAP 0/0MB (cached 0MB) "
+    "CPU [3%@2601,1%@2601,off] GR3D_FREQ 5%@[1575,1575] "
+    "cpu@45.2C/46.8C gpu@44.1C/45.0C tj@46.8C/48.0C "
+    "VDD_GPU 1200mW/1300mW VDD_CPU_SOC_MSS 4500mW/4600mW VIN_SYS_5V0 9000mW/9100mW"
+)
+ORIN_OLD = (
+    "12-23-2024 22:54:11 RAM 3162/7620MB (lfb 4x2MB) SWAP 0/3810MB (cached 0MB) "
+    "CPU [1%@729,0%@729,0%@729,0%@729,off,off] GR3D_FREQ 47% cpu@62.843C soc2@61.968C "
+    "soc0@60.625C gpu@61.687C tj@41.468C soc1@61.687C "
+    "VDD_IN 3913mW/3922mW VDD_CPU_GPU_CV 598mW/598mW VDD_SOC 1238mW/1237mW"
+)
+XAVIER = (
+    "RAM 3504/31927MB (lfb 6327x4MB) SWAP 0/15963MB (cached 0MB) "
+    "CPU [1%@1190,0%@1190,off,off,off,off,off,off] EMC_FREQ 0%@2133 GR3D_FREQ 0%@318 "
+    "APE 150 MTS fg 0% bg 0% AO@36.5C GPU@36C Tdiode@38.5C PMIC@100C AUX@35.5C CPU@37C "
+    "thermal@36.6C Tboard@36C GPU 1155/1155 CPU 311/311 SOC 1554/1554 CV 0/0 "
+    "VDDRQ 155/155 SYS5V 1283/1283"
+)
+NANO = (
+    "RAM 1766/3964MB (lfb 197x4MB) SWAP 0/2048MB (cached 0MB) IRAM 0/252kB(lfb 252kB) "
+    "CPU [24%@1224,15%@1224,13%@1224,10%@1224] EMC_FREQ 0%@1600 GR3D_FREQ 0%@76 APE 25 "
+    "PLL@21C CPU@25C PMIC@100C GPU@23.5C AO@33.5C iwlwifi@-256C thermal@24.5C "
+    "POM_5V_IN 933/933 POM_5V_GPU 0/0 POM_5V_CPU 118/118"
+)
+TX2 = (
+    "RAM 2196/7855MB (lfb 1x4MB) SWAP 0/3927MB (cached 0MB) CPU [35%@2035,off,off,"
+    "30%@2035,28%@2035,33%@2035] EMC_FREQ 9%@1866 GR3D_FREQ 99%@1300 APE 150 "
+    "PLL@46.5C MCPU@46.5C PMIC@100C Tboard@42C GPU@44C BCPU@46.5C thermal@45.4C "
+    "Tdiode@45.25C VDD_SYS_GPU 5036/5184 VDD_SYS_SOC 1068/1082 VDD_4V0_WIFI 0/0 "
+    "VDD_IN 14025/14416 VDD_SYS_CPU 1294/1312 VDD_SYS_DDR 1525/1590"
+)
+
+
+def test_orin_jetpack6():
+    p = tegrastats.parse_line(ORIN_JP6)
+    assert (p["ram_used_mb"], p["ram_total_mb"]) == (2456, 7620)
+    assert (p["swap_used_mb"], p["swap_total_mb"]) == (0, 3810)
+    assert p["cpu_percent"] == [2.0, 1.0, 0.0, 0.0, None, None]
+    assert p["cpu_mhz"] == [1510] * 4 + [None, None]
+    assert p["gpu_percent"] == 12.0 and p["gpu_mhz"] == [1300, 1300]
+    assert p["temps_c"]["tj"] == 47.5 and p["temps_c"]["gpu"] == 46.9
+    assert len(p["temps_c"]) == 6
+    assert p["rails_mw"] == {"VDD_IN": 4787.0, "VDD_CPU_GPU_CV": 598.0, "VDD_SOC": 1435.0}
+    assert p["power_mw"] == 4787.0  # VDD_IN is the total, not the sum
+
+
+def test_jetpack7_temperature_pairs():
+    p = tegrastats.parse_line(JP7)
+    assert p["temps_c"] == {"cpu": 45.2, "gpu": 44.1, "tj": 46.8}
+    assert p["temps_max_c"] == {"cpu": 46.8, "gpu": 45.0, "tj": 48.0}
+    assert p["cpu_percent"] == [3.0, 1.0, None]
+    assert p["gpu_percent"] == 5.0
+    assert p["power_mw"] == 1200.0 + 4500.0 + 9000.0  # no VDD_IN: sum of the rails
+
+
+def test_older_orin_plain_gr3d():
+    p = tegrastats.parse_line(ORIN_OLD)
+    assert p["gpu_percent"] == 47.0 and p["gpu_mhz"] is None
+    assert p["temps_c"]["tj"] == 41.468
+    assert p["power_mw"] == 3913.0
+
+
+def test_xavier_rails_without_unit():
+    p = tegrastats.parse_line(XAVIER)
+    assert p["rails_mw"]["GPU"] == 1155.0 and p["rails_mw"]["CPU"] == 311.0
+    assert p["power_mw"] == 1155 + 311 + 1554 + 0 + 155 + 1283
+    assert p["cpu_percent"][:2] == [1.0, 0.0] and p["cpu_percent"][2:] == [None] * 6
+    assert p["gpu_percent"] == 0.0 and p["gpu_mhz"] == [318]
+    assert p["temps_c"]["Tdiode"] == 38.5
+    assert "APE" not in p["rails_mw"] and "RAM" not in p["rails_mw"]
+
+
+def test_nano_pom_total_and_off_sensor():
+    p = tegrastats.parse_line(NANO)
+    assert p["power_mw"] == 933.0
+    assert p["temps_c"]["iwlwifi"] is None  # −256 C means off
+    assert p["temps_c"]["GPU"] == 23.5
+    assert "IRAM" not in p["rails_mw"]
+    s = tegrastats.summarize(p)
+    assert s["tegra_power_w"] == pytest.approx(0.933)
+    assert s["tegra_temp_max_c"] == 100.0
+    assert s["tegra_cpu_percent"] == pytest.approx((24 + 15 + 13 + 10) / 4)
+
+
+def test_tx2_vdd_in_total():
+    p = tegrastats.parse_line(TX2)
+    assert p["power_mw"] == 14025.0
+    assert p["rails_mw"]["VDD_SYS_GPU"] == 5036.0
+    assert p["cpu_percent"] == [35.0, None, None, 30.0, 28.0, 33.0]
+    assert p["gpu_percent"] == 99.0
+
+
+def test_empty_line_reports_nothing():
+    p = tegrastats.parse_line("")
+    assert p["power_mw"] is None and p["gpu_percent"] is None and p["cpu_percent"] is None
+    assert all(v is None for v in tegrastats.summarize(p).values())
+
+
+def test_rapl_counter_wraps():
+    assert samplers.counter_delta(100, 250, 1000) == 150
+    assert samplers.counter_delta(900, 50, 1000) == 150  # wrapped at max_energy_range_uj
+    assert samplers.counter_delta(900, 50, None) == 0
+
+
+def test_rapl_sensor_reads_fake_sysfs_with_wrap(tmp_path):
+    zone = tmp_path / "intel-rapl:0"
+    zone.mkdir()
+    (zone / "max_energy_range_uj").write_text("1000000\n")
+    (zone / "energy_uj").write_text("900000\n")
+    sub = tmp_path / "intel-rapl:0:0"  # a subzone: already counted in the package
+    sub.mkdir()
+    (sub / "energy_uj").write_text("5\n")
+    sensor = samplers.RaplSensor(str(tmp_path / "intel-rapl*"))
+    assert sensor.available
+    (zone / "energy_uj").write_text("100000\n")
+    assert sensor.read()["rapl_energy_j"] == pytest.approx(0.2)
+
+
+def test_absent_sensors_are_none_never_zero(tmp_path, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "pynvml", None)  # import fails: no NVML
+    monkeypatch.setattr(samplers.shutil, "which", lambda name: None)  # no tegrastats
+    sensors = [
+        samplers.NvmlSensor(),
+        samplers.RaplSensor(str(tmp_path / "intel-rapl*")),  # no RAPL
+        samplers.ThermalSensor(str(tmp_path / "thermal_zone*/temp")),
+        samplers.TegrastatsSensor(),
+    ]
+    assert not any(s.available for s in sensors[:2]) and not sensors[3].available
+    sampler = samplers.Sampler(sensors)
+    row = sampler.sample()
+    for column in (
+        "gpu_util_percent",
+        "gpu_power_w",
+        "gpu_energy_j",
+        "rapl_energy_j",
+        "rapl_power_w",
+        "tegra_gpu_percent",
+        "tegra_power_w",
+        "gpu",
+        "power",
+    ):
+        assert row[column] is None, column
+    assert sampler.availability()["nvml"] is False
+    assert report.energy_j([{**row, "phase": "steady"}] * 3) is None
+    path = tmp_path / "trace.csv"
+    report.write_csv(path, [row])
+    written = next(csv.DictReader(path.read_text().splitlines()))
+    assert written["gpu_util_percent"] == "" and written["rapl_energy_j"] == ""
+
+
+def test_combined_prefers_tegrastats_total_power():
+    row = {"tegra_power_w": 5.0, "gpu_power_w": 100.0, "rapl_power_w": 20.0}
+    assert samplers.combined(row)["power"] == 5.0
+    assert samplers.combined({"gpu_power_w": 100.0, "rapl_power_w": 20.0})["power"] == 120.0
+
+
+def test_truncate_idle_gpu_cuts_long_zero_stretches():
+    import numpy as np
+
+    t = np.arange(20.0)
+    gpu = np.array([50.0] * 2 + [0.0] * 15 + [60.0] * 3)
+    trace = {"time_s": t, "gpu": gpu, "cpu": gpu, "temp": gpu}
+    cut = report.truncate_idle(trace, min_idle_s=3.0)
+    assert cut["time_s"].size < t.size
+    assert np.all(np.diff(cut["time_s"]) > 0)
+    assert cut["gpu"][-1] == 60.0
+
+
+def test_profile_bad_input_is_one_line(tmp_path, capsys):
+    argv = ["profile", "--env", "escape_room-v0", "--controller", "evil", "--out", str(tmp_path)]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "controller: unknown controller 'evil'" in err
+    assert cli.main(["profile", "--env", "escape_room-v0", "--duration", "0", "--out", "x"]) == 2
+
+
+def test_paired_profile_end_to_end(tmp_path, capsys):
+    out = tmp_path / "prof"
+    argv = [
+        "profile",
+        "--env",
+        "escape_room-v0",
+        "n_agents=2",
+        "min_at_lever=1",
+        "--paired",
+        "--duration",
+        "1.5",
+        "--hidden",
+        "16",
+        "8",
+        "--update-every",
+        "50",
+        "--sample-hz",
+        "4",
+        "--out",
+        str(out),
+    ]
+    assert cli.main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "ADMO overhead" in printed and "decisions/s" in printed
+    summary = json.loads((out / "summary.json").read_text())
+    assert set(summary) == {"benign", "admo", "comparison"}
+    assert (out / "profile.png").stat().st_size > 0
+    for controller in ("benign", "admo"):
+        run = out / controller
+        for name in ("trace.csv", "latency.csv", "updates.csv", "summary.json"):
+            assert (run / name).exists(), name
+        s = summary[controller]
+        assert s["config"]["controller"] == controller
+        assert s["config"]["hidden"] == [16, 8]
+        assert s["latency_ms"]["count"] > 0
+        assert s["latency_ms"]["p50"] <= s["latency_ms"]["p99"] <= s["latency_ms"]["max"]
+        assert s["decisions_per_s"] > 0
+        assert s["update_ms"]["count"] > 0
+        assert set(s["compile_s"]) == {"env_reset", "env_step", "decision", "update"}
+        for key in ("warmup_s", "mean_power_w", "energy_j", "peak_temp_c", "sensors"):
+            assert key in s
+        assert s["sensors"]["psutil"] is True
+        rows = list(csv.DictReader((run / "trace.csv").read_text().splitlines()))
+        assert len(rows) >= 2 and {"cpu", "gpu", "temp", "power", "phase"} <= set(rows[0])
+        lat = list(csv.DictReader((run / "latency.csv").read_text().splitlines()))
+        assert len(lat) == s["latency_ms"]["count"]
+    # Only the controller differs between the paired runs.
+    b, a = summary["benign"]["config"], summary["admo"]["config"]
+    assert {k for k in b if b[k] != a[k]} == {"controller"}
+    assert summary["comparison"]["latency_p50_ms"]["benign"] > 0
+    assert "percent_of_decision" in summary["comparison"]["update_per_decision_ms"]
