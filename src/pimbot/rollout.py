@@ -56,6 +56,35 @@ def fill_incentive_obs(env: Env, obs: jax.Array, given: jax.Array) -> jax.Array:
     return obs.at[:, -(n - 1) :].set(given_to_others)
 
 
+def decide(
+    env: Env,
+    key: jax.Array,
+    obs: jax.Array,
+    given: jax.Array,
+    act: ActFn,
+    give: GiveFn | None,
+    attack: Attack,
+    env_step: jax.Array | int,
+):
+    """One joint decision as training plays it: the observation with the incentives
+    given so far, the attack's actions and its emission of the learned incentives.
+
+    Args:
+        obs: [N, obs_dim] from the env; given: [N, N] incentives emitted so far this episode.
+    Returns:
+        (filled obs, actions int32 [N], incentives emitted [N, N], scale [N], offset [N, N]).
+    """
+    n = env.num_agents
+    obs = fill_incentive_obs(env, obs, given)
+    actions = attack.act(act(key, obs).astype(jnp.int32), env.idle_action, env_step)
+    scale, offset = attack.emit(n, given)
+    if give is None:
+        incentives = jnp.zeros((n, n), jnp.float32)
+    else:
+        incentives = scale[:, None] * give(obs, actions) + offset
+    return obs, actions, incentives, scale, offset
+
+
 def rollout(
     env: Env,
     key: jax.Array,
@@ -83,13 +112,10 @@ def rollout(
         state, obs, given, alive = carry
         step_key, t = inputs
         act_key, env_key = jax.random.split(step_key)
-        obs = fill_incentive_obs(env, obs, given)
-        actions = attack.act(act(act_key, obs).astype(jnp.int32), env.idle_action, env_step0 + t)
-        scale, offset = attack.emit(n, given)
-        if give is None:
-            incentives = jnp.zeros((n, n), jnp.float32)
-        else:
-            incentives = (scale[:, None] * give(obs, actions) + offset) * alive
+        obs, actions, incentives, scale, offset = decide(
+            env, act_key, obs, given, act, give, attack, env_step0 + t
+        )
+        incentives = incentives * alive
         next_obs, next_state, rewards, done, info = env.step(env_key, state, actions)
         step = Trajectory(
             obs=obs,

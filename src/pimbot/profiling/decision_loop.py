@@ -23,7 +23,7 @@ import numpy as np
 from pimbot import attacks, envs
 from pimbot.learners import lio
 from pimbot.learners.pg import act_fn
-from pimbot.rollout import NO_ATTACK, fill_incentive_obs
+from pimbot.rollout import NO_ATTACK, decide
 
 CONTROLLERS = ("benign", "admo")
 
@@ -80,18 +80,14 @@ def decision_fn(env, cfg: lio.LIOConfig, attack) -> Callable:
     and each giver's incentive head, with the attack's act/emit hooks as in training.
     """
     policy_module, incentive_module = lio._modules(env, cfg)
-    n = env.num_agents
 
-    def decide(policy, incentive, key, obs, given, t):
-        obs = fill_incentive_obs(env, obs, given)
+    def decision(policy, incentive, key, obs, given, t):
         act = act_fn(policy_module, policy, jnp.float32(0.0))
-        actions = attack.act(act(key, obs).astype(jnp.int32), env.idle_action, t)
-        scale, offset = attack.emit(n, given)
         give = lio.give_fn(incentive_module, incentive, env.num_actions, cfg.incentive_max)
-        incentives = scale[:, None] * give(obs, actions) + offset
+        _, actions, incentives, _, _ = decide(env, key, obs, given, act, give, attack, t)
         return actions, given + incentives
 
-    return jax.jit(decide)
+    return jax.jit(decision)
 
 
 def _timed(fn, *args):
