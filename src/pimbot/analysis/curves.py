@@ -32,3 +32,12 @@ def mean_and_band(values: np.ndarray, resamples: int = 1000, seed: int = 0):
     picks = rng.integers(0, n, size=(resamples, n))
     boot = values[picks].mean(axis=1)  # [resamples, E]
     return values.mean(axis=0), np.quantile(boot, 0.025, axis=0), np.quantile(boot, 0.975, axis=0)
+
+
+def columns(run_dir: str | Path) -> list[str]:
+    """The metric columns a run directory's metrics.csv has (its header)."""
+    path = Path(run_dir) / store.METRICS
+    if not path.exists():
+        return []
+    with open(path) as f:
+        return f.readline().strip().split(",")

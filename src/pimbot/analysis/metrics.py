@@ -58,3 +58,19 @@ def bootstrap_ci(
     means = rng.choice(samples, size=(resamples, samples.size), replace=True).mean(axis=1)
     alpha = (1.0 - level) / 2
     return float(np.quantile(means, alpha)), float(np.quantile(means, 1 - alpha))
+
+
+def diff_ci(
+    a: np.ndarray, b: np.ndarray, resamples: int = 10_000, seed: int = 0
+) -> tuple[float, float, float]:
+    """Mean of a − mean of b and its 95 % bootstrap CI (the two samples resampled
+    independently: different runs' seeds are not paired)."""
+    rng = np.random.default_rng(seed)
+    da = rng.choice(a, (resamples, a.size)).mean(axis=1)
+    db = rng.choice(b, (resamples, b.size)).mean(axis=1)
+    diff = da - db
+    return (
+        float(a.mean() - b.mean()),
+        float(np.quantile(diff, 0.025)),
+        float(np.quantile(diff, 0.975)),
+    )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -10,24 +11,84 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from pimbot.analysis.curves import load_curve, mean_and_band  # noqa: E402
+from pimbot.analysis.runs import RunRecord, condition_key, env_label  # noqa: E402
 from pimbot.experiment import store  # noqa: E402
 
-# Uniformly random team, 200k simulated episodes (spec/experiments.md).
 RANDOM_POLICY = {
-    (2, 1): {"eval/success": 0.72, "eval/return_ratio": 0.38},
-    (4, 2): {"eval/success": 0.80, "eval/return_ratio": 0.17},
-    (4, 3): {"eval/success": 0.22, "eval/return_ratio": -1.38},
+    "ER(2,1)": {"eval/success": 0.72, "eval/return_ratio": 0.38},
+    "ER(4,2)": {"eval/success": 0.80, "eval/return_ratio": 0.17},
+    "ER(4,3)": {"eval/success": 0.22, "eval/return_ratio": -1.38},
 }
+"""A uniformly random team, 200k simulated episodes (spec/experiments.md), by env label."""
+
+
+def band(ax, run_dir: Path, column: str, label=None, color=None, lw=1.2, style="-") -> None:
+    """One run's mean curve of `column` over seeds and its 95 % bootstrap band."""
+    iterations, values = load_curve(run_dir, column)
+    mean, lo, hi = mean_and_band(values)
+    (line,) = ax.plot(iterations, mean, style, label=label, color=color, lw=lw)
+    ax.fill_between(iterations, lo, hi, color=line.get_color(), alpha=0.15, lw=0)
+
+
+def runs_of(runs: list[RunRecord], env: str) -> list[RunRecord]:
+    """The runs of one env label, conditions in order."""
+    return sorted((r for r in runs if r.env == env), key=lambda r: condition_key(r.condition))
+
+
+def condition_panels(runs: list[RunRecord], envs: list[str], colors: dict) -> list:
+    """`curve_panels` input: one panel per env, one line per run labelled by its condition."""
+    return [
+        (env, [(r, r.condition, colors[r.condition]) for r in runs_of(runs, env)]) for env in envs
+    ]
+
+
+def curve_panels(
+    panels: list[tuple[str, list[tuple[Any, str, Any]]]],
+    column: str,
+    ylabel: str,
+    path: Path,
+    cols: int | None = None,
+    ylim: tuple[float, float] | None = None,
+    title: str = "",
+) -> None:
+    """One panel per (title, lines); a line is (run record, label, colour), drawn with its
+    band. A panel whose title has a random-team value for `column` gets a reference line."""
+    cols = cols or len(panels)
+    rows = (len(panels) + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(5.2 * cols, 3.8 * rows), squeeze=False)
+    for ax, (name, lines) in zip(axes.flat, panels, strict=False):
+        for run, label, color, *style in lines:
+            band(ax, run.path, column, label, color, style=style[0] if style else "-")
+        reference = RANDOM_POLICY.get(name, {}).get(column)
+        if reference is not None:
+            ax.axhline(reference, color="grey", ls=":", lw=1, label="random team")
+        ax.set_title(name)
+        ax.set_xlabel("iteration")
+        ax.set_ylabel(ylabel)
+        if ylim:
+            ax.set_ylim(*ylim)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    for ax in list(axes.flat)[len(panels) :]:
+        ax.axis("off")
+    if title:
+        fig.suptitle(title)
+    save(fig, path)
+
+
+def save(fig, path: Path, dpi: int = 110) -> None:
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+
+
+# --- `pimbot plot` ---------------------------------------------------------------------
 
 
 def run_label(run_dir: Path) -> str:
     config = store.read_json(run_dir / store.CONFIG)
-    params = config["env"]["params"]
-    env = config["env"]["id"].removesuffix("-v0")
-    if "n_agents" in params:
-        env = f"ER({params['n_agents']},{params['min_at_lever']})"
-    elif "n_players" in params:
-        env = f"{env}(N={params['n_players']})"
+    env = env_label(config["env"]["id"], config["env"]["params"])
     label = f"{config['identity']['learner']} {env}"
     first, count = config["identity"]["first_seed"], config["identity"]["seeds"]
     if first:
@@ -43,17 +104,11 @@ def plot_runs(run_dirs: list[Path], out: Path, columns=("eval/success", "eval/re
     for ax, column in zip(axes[0], columns, strict=True):
         for run_dir in run_dirs:
             try:
-                iterations, values = load_curve(run_dir, column)
+                band(ax, run_dir, column, run_label(run_dir))
             except ValueError:
                 continue
-            mean, lo, hi = mean_and_band(values)
-            (line,) = ax.plot(iterations, mean, label=run_label(run_dir), lw=1.2)
-            ax.fill_between(iterations, lo, hi, color=line.get_color(), alpha=0.2, lw=0)
         ax.set_xlabel("iteration")
         ax.set_ylabel(column)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    fig.tight_layout()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
+    save(fig, out, dpi=120)

@@ -1,41 +1,173 @@
-"""Markdown tables of final metrics and convergence, from run directories' summary.json."""
+"""Tables of results: estimates with 95 % CIs, their one formatter, Markdown, HTML and CSV.
+
+Every table of `pimbot report` and `pimbot table` is a `Table` of cells; a cell is
+text, a number, None (written "–") or an `Estimate` (a mean and its CI). The
+same table is written as Markdown, as HTML and as CSV (an estimate becomes
+three columns there: the value, its low and its high end, unrounded).
+"""
 
 from __future__ import annotations
 
+import csv
+import dataclasses
+import html
+import re
 from pathlib import Path
+from typing import Any
 
-from pimbot.analysis.plots import run_label
-from pimbot.experiment import store
-from pimbot.experiment.runner import summarize
+import numpy as np
+
+from pimbot.analysis.metrics import bootstrap_ci, diff_ci
+
+MISSING = "–"
 
 
-def _cell(summary: dict, column: str) -> str:
+@dataclasses.dataclass(frozen=True)
+class Estimate:
+    """A mean (or a difference of means) and its 95 % bootstrap CI over seeds."""
+
+    mean: float
+    lo: float
+    hi: float
+    digits: int = 3
+    signed: bool = False
+    """Write every number with its sign (differences, margins)."""
+
+    def __str__(self) -> str:
+        spec = f"{'+' if self.signed else ''}.{self.digits}f"
+        return f"{self.mean:{spec}} [{self.lo:{spec}}, {self.hi:{spec}}]"
+
+
+def estimate(samples: np.ndarray, digits: int = 3, signed: bool = False) -> Estimate | None:
+    """Mean of per-seed `samples` with its 95 % bootstrap CI; None without samples."""
+    samples = np.asarray(samples, dtype=float)
+    if samples.size == 0:
+        return None
+    lo, hi = bootstrap_ci(samples)
+    return Estimate(float(samples.mean()), lo, hi, digits, signed)
+
+
+def difference(a: np.ndarray, b: np.ndarray, digits: int = 3) -> Estimate | None:
+    """Mean of a − mean of b with its 95 % bootstrap CI (seeds resampled independently)."""
+    if np.size(a) == 0 or np.size(b) == 0:
+        return None
+    return Estimate(*diff_ci(np.asarray(a), np.asarray(b)), digits=digits, signed=True)
+
+
+def fmt(value: Any, digits: int = 3) -> str:
+    """The one cell formatter: None → "–", floats to `digits` places, estimates as
+    "mean [lo, hi]"."""
+    if value is None:
+        return MISSING
+    if isinstance(value, float | np.floating):
+        return f"{value:.{digits}f}"
+    return str(value)
+
+
+@dataclasses.dataclass
+class Table:
+    header: list[str]
+    rows: list[list[Any]]
+    title: str = ""
+    """A heading of its own inside the section (empty: none)."""
+    note: str = ""
+    """A paragraph written above the table."""
+    name: str = ""
+    """File name of its CSV (without .csv); empty: derived from the section."""
+
+
+def markdown_lines(table: Table, level: int = 3) -> list[str]:
+    lines = [f"{'#' * level} {table.title}", ""] if table.title else []
+    lines += [table.note, ""] if table.note else []
+    lines += ["| " + " | ".join(table.header) + " |", "|" + " --- |" * len(table.header)]
+    lines += ["| " + " | ".join(fmt(c) for c in row) + " |" for row in table.rows]
+    return lines + [""]
+
+
+def html_table(table: Table, cell_class=None, level: int = 3) -> str:
+    """`cell_class(column, text)` may return a CSS class for a cell."""
+    parts = [f"<h{level}>{html.escape(table.title)}</h{level}>"] if table.title else []
+    parts += [f"<p>{html.escape(table.note)}</p>"] if table.note else []
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in table.header)
+    body = []
+    for row in table.rows:
+        cells = []
+        for i, cell in enumerate(row):
+            text = fmt(cell)
+            cls = cell_class(i, text) if cell_class else None
+            attr = f' class="{cls}"' if cls else ""
+            cells.append(f"<td{attr}>{html.escape(text)}</td>")
+        body.append("<tr>" + "".join(cells) + "</tr>")
+    return "".join(parts) + f"<table><tr>{head}</tr>{''.join(body)}</table>"
+
+
+def write_csv(table: Table, path: Path) -> None:
+    """One CSV row per table row; an estimate column becomes `col`, `col lo`, `col hi`
+    (unrounded, the column's "[CI]" suffix dropped)."""
+    estimates = [
+        any(isinstance(row[i], Estimate) for row in table.rows) for i in range(len(table.header))
+    ]
+    header: list[str] = []
+    for name, is_estimate in zip(table.header, estimates, strict=True):
+        base = re.sub(r"\s*\[[^\]]*\]$", "", name)  # "success [CI]" -> success, lo, hi
+        header += [base, f"{base} lo", f"{base} hi"] if is_estimate else [name]
+    with open(path, "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(header)
+        for row in table.rows:
+            out: list[Any] = []
+            for cell, is_estimate in zip(row, estimates, strict=True):
+                if not is_estimate:
+                    out.append("" if cell is None else cell)
+                elif isinstance(cell, Estimate):
+                    out += [cell.mean, cell.lo, cell.hi]
+                else:
+                    out += ["", "", ""]
+            writer.writerow(out)
+
+
+# --- `pimbot table` --------------------------------------------------------------------
+
+
+def _final(summary: dict, column: str) -> Estimate | None:
     entry = summary["final"].get(column)
-    if entry is None:
-        return "–"
-    lo, hi = entry["ci95"]
-    return f"{entry['mean']:.3f} [{lo:.3f}, {hi:.3f}]"
+    return None if entry is None else Estimate(entry["mean"], *entry["ci95"])
 
 
 def summary_table(run_dirs: list[Path]) -> str:
     """One row per run: final success, return ratio, team return, convergence, speed."""
-    lines = [
-        "| run | iterations | seeds | final success [95 % CI] | final return ratio [95 % CI] "
-        "| converged seeds | convergence median [IQR] | first crossing median | it/s |",
-        "| --- | ---: | ---: | --- | --- | ---: | --- | ---: | ---: |",
-    ]
+    from pimbot.analysis.plots import run_label
+    from pimbot.experiment import store
+    from pimbot.experiment.runner import summarize
+
+    rows = []
     for run_dir in run_dirs:
         # Final metrics and convergence recomputed from metrics.csv (the primary record).
         summary = {**store.read_json(run_dir / store.SUMMARY), **summarize(run_dir)}
         conv = summary["convergence"]
-        crossing = conv["first_crossing_median"]
-        first = "–" if crossing is None else f"{crossing:.0f}"
-        median = "–" if conv["median"] is None else f"{conv['median']:.0f}"
         iqr = "[" + ", ".join("∞" if q is None else f"{q:.0f}" for q in conv["iqr"]) + "]"
-        lines.append(
-            f"| {run_label(run_dir)} | {summary['iterations']} | {len(summary['seeds'])} "
-            f"| {_cell(summary, 'eval/success')} | {_cell(summary, 'eval/return_ratio')} "
-            f"| {conv['converged_seeds']}/{len(summary['seeds'])} | {median} {iqr} | {first} "
-            f"| {summary['iters_per_s_mean']:.0f} |"
+        rows.append(
+            [
+                run_label(run_dir),
+                summary["iterations"],
+                len(summary["seeds"]),
+                _final(summary, "eval/success"),
+                _final(summary, "eval/return_ratio"),
+                f"{conv['converged_seeds']}/{len(summary['seeds'])}",
+                f"{fmt(conv['median'], 0)} {iqr}",
+                fmt(conv["first_crossing_median"], 0),
+                f"{summary['iters_per_s_mean']:.0f}",
+            ]
         )
-    return "\n".join(lines) + "\n"
+    header = [
+        "run",
+        "iterations",
+        "seeds",
+        "final success [95 % CI]",
+        "final return ratio [95 % CI]",
+        "converged seeds",
+        "convergence median [IQR]",
+        "first crossing median",
+        "it/s",
+    ]
+    return "\n".join(markdown_lines(Table(header, rows))[:-1]) + "\n"

@@ -1,0 +1,259 @@
+"""The table of training runs of a suite directory: one `RunRecord` per run, loaded once.
+
+Every report section reads this table. Labels are derived from each run's
+config.json, never looked up in a list: the condition is the attack's name and
+the parameters the run set explicitly (``admo_disrupt``,
+``fake_incentive(amount=10.0)``), the env is a short form of its id with its
+size parameters (``ER(4,2)``, ``IPD(2)``, ``SH(3)``), and defenses are their
+names joined by ``+``. So an attack, env or defense the report has never heard
+of gets its own label and colour instead of an error. The paper's order of
+conditions is kept as a preference for sorting only: other names sort after.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pimbot.experiment import store
+from pimbot.experiment.runner import summarize
+
+CLEAN = "clean"
+NO_DEFENSE = "none"
+CONDITION_ORDER = (
+    CLEAN,
+    "self_centered",
+    "fake_incentive",
+    "bypass",
+    "reverse",
+    "admo_stealthy",
+    "admo_disrupt",
+)
+"""The paper's order of conditions; sorting only (unknown conditions sort after, by name)."""
+SIZE_PARAMS = ("n_agents", "n_players", "min_at_lever")
+"""Env parameters written in the env label, in this order: ER(n_agents,min_at_lever)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RunRecord:
+    """One finished training run of the suite, with the labels the report groups it by."""
+
+    name: str
+    """The job name: the run directory relative to the suite directory (`<group>/<setting>`)."""
+    path: Path
+    config: dict[str, Any]
+    """config.json as written by the runner."""
+    summary: dict[str, Any]
+    """summary.json, its final metrics and convergence recomputed from metrics.csv."""
+    condition: str
+    env: str
+    learner: str
+    hparams: str
+    """The learner hyperparameters the run overrode, "k=v, …" ("" for the defaults)."""
+    defenses: str
+    seeds: int
+    iterations: int
+
+    @property
+    def group(self) -> str:
+        return self.name.split("/", 1)[0]
+
+    @property
+    def setting(self) -> str:
+        return self.name.rsplit("/", 1)[-1]
+
+    @property
+    def identity(self) -> dict[str, Any]:
+        return self.config["identity"]
+
+    @property
+    def env_key(self) -> tuple:
+        """The environment itself (id and every parameter), for matching runs across groups."""
+        return self.identity["env_id"], tuple(sorted(self.identity["env_params"].items()))
+
+    @property
+    def cell(self) -> tuple:
+        """Runs of one cell differ only in the attack: env, learner, hparams and defenses."""
+        return self.env_key, self.learner, self.hparams, self.defenses
+
+    @property
+    def num_agents(self) -> int:
+        return int(self.config["env"]["num_agents"])
+
+    @property
+    def adversary(self) -> int:
+        return int(self.identity["attack_params"].get("adversary", 0)) if self.attack else 0
+
+    @property
+    def attack(self) -> str | None:
+        return self.identity["attack"]
+
+    def per_seed(self, column: str) -> np.ndarray:
+        """Final value of `column` per seed (mean of the last evaluation points); [] if absent."""
+        entry = self.summary["final"].get(column)
+        return np.array(entry["per_seed"]) if entry else np.array([])
+
+
+@dataclasses.dataclass(frozen=True)
+class RunTable:
+    """Every finished training run of a suite, and one colour per condition."""
+
+    records: tuple[RunRecord, ...]
+
+    def group(self, name: str) -> list[RunRecord]:
+        return [r for r in self.records if r.group == name]
+
+    @property
+    def groups(self) -> list[str]:
+        return sorted({r.group for r in self.records})
+
+    @property
+    def colors(self) -> dict[str, Any]:
+        """A stable colour per condition: assigned along the sorted conditions, clean first."""
+        import matplotlib
+
+        conditions = sorted({r.condition for r in self.records} | {CLEAN}, key=condition_key)
+        cmap = matplotlib.colormaps["tab10" if len(conditions) <= 10 else "tab20"]
+        return {c: cmap.colors[k % len(cmap.colors)] for k, c in enumerate(conditions)}
+
+    def clean_for(self, record: RunRecord) -> RunRecord | None:
+        """The clean run of `record`'s group and cell (same env, learner, hparams, defenses)."""
+        return next(
+            (
+                r
+                for r in self.records
+                if r.condition == CLEAN and r.group == record.group and r.cell == record.cell
+            ),
+            None,
+        )
+
+
+# --- labels ----------------------------------------------------------------------------
+
+
+def _value(value: Any) -> str:
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def env_label(env_id: str, params: dict[str, Any]) -> str:
+    """``ER(4,2)`` for escape_room-v0 with 4 agents, 2 at the lever; ``IPD(2)``; ``SH(3)``.
+
+    The short name is the id's initials (the whole word for a one-word id); the size
+    parameters follow. An env with none of them shows every parameter by name.
+    """
+    base = env_id.rsplit("-v", 1)[0]
+    words = [w for w in base.split("_") if w]
+    short = base.upper() if len(words) <= 1 else "".join(w[0] for w in words).upper()
+    sizes = [_value(params[k]) for k in SIZE_PARAMS if k in params]
+    if not sizes:
+        sizes = [f"{k}={_value(v)}" for k, v in sorted(params.items())]
+    return f"{short}({','.join(sizes)})" if sizes else short
+
+
+def condition_label(attack: str | None, params: dict[str, Any], given: list | tuple = ()) -> str:
+    """`clean`, or the attack's name, its text-valued (mode) parameters joined by ``_``
+    (``admo_disrupt``), and the numeric parameters the run set, in parentheses
+    (``fake_incentive(amount=10)``). `params`: every resolved parameter; `given`: the
+    (name, value) pairs the run set."""
+    if attack is None:
+        return CLEAN
+    words = [str(v) for _, v in sorted(params.items()) if isinstance(v, str)]
+    others = [f"{k}={_value(v)}" for k, v in sorted(given) if not isinstance(v, str)]
+    label = "_".join([attack, *words])
+    return label + (f"({', '.join(others)})" if others else "")
+
+
+def distinct_env_labels(records: list[RunRecord]) -> dict[tuple, str]:
+    """Env label per `env_key`, with the parameters that tell apart envs of one label."""
+    by_label: dict[str, dict[tuple, dict]] = {}
+    for r in records:
+        by_label.setdefault(r.env, {})[r.env_key] = r.identity["env_params"]
+    out = {}
+    for label, envs in by_label.items():
+        keys = sorted({k for params in envs.values() for k in params})
+        varying = [k for k in keys if len({repr(p.get(k)) for p in envs.values()}) > 1]
+        for env_key, params in envs.items():
+            extra = ", ".join(f"{k}={_value(params.get(k))}" for k in varying)
+            out[env_key] = f"{label} {extra}" if extra else label
+    return out
+
+
+def defense_label(defenses: list | tuple) -> str:
+    """`none`, or the defenses' names joined by ``+``, each with the parameters it set."""
+    if not defenses:
+        return NO_DEFENSE
+    parts = []
+    for name, params in defenses:
+        given = ", ".join(f"{k}={_value(v)}" for k, v in sorted(params))
+        parts.append(f"{name}({given})" if given else name)
+    return "+".join(parts)
+
+
+def hparams_label(hparams: list | tuple) -> str:
+    return ", ".join(f"{k}={_value(v)}" for k, v in sorted(hparams))
+
+
+def condition_key(condition: str) -> tuple[int, str]:
+    """Sort key: the paper's conditions in the paper's order, then any other by name."""
+    if condition in CONDITION_ORDER:
+        return CONDITION_ORDER.index(condition), ""
+    return len(CONDITION_ORDER), condition
+
+
+def natural_key(text: str) -> tuple:
+    """Sort key that orders numbers by value: ER(4,2) < ER(10,2)."""
+    return tuple(int(p) if p.isdigit() else p for p in re.split(r"(\d+)", text))
+
+
+# --- loading ---------------------------------------------------------------------------
+
+
+def load_record(suite_dir: Path, name: str) -> RunRecord:
+    path = Path(suite_dir) / name
+    config = store.read_json(path / store.CONFIG)
+    identity, run = config["identity"], config["run_config"]
+    summary = {**store.read_json(path / store.SUMMARY), **summarize(path)}
+    return RunRecord(
+        name=name,
+        path=path,
+        config=config,
+        summary=summary,
+        condition=condition_label(
+            identity["attack"], identity["attack_params"], run.get("attack_params", ())
+        ),
+        env=env_label(identity["env_id"], identity["env_params"]),
+        learner=identity["learner"],
+        hparams=hparams_label(run.get("hparams", ())),
+        defenses=defense_label(run.get("defenses", ())),
+        seeds=len(summary["seeds"]),
+        iterations=int(summary["iterations"]),
+    )
+
+
+def _is_training_run(path: Path) -> bool:
+    if not (path / store.SUMMARY).exists() or not (path / store.CONFIG).exists():
+        return False
+    config = store.read_json(path / store.CONFIG)
+    return isinstance(config, dict) and "identity" in config and "run_config" in config
+
+
+def load_table(suite_dir: Path, index: dict | None = None) -> RunTable:
+    """Every finished training run under `suite_dir` (`<group>/<setting>/` directories).
+
+    Jobs the index lists with another kind (profiles, robot evaluations) are skipped;
+    finished run directories the index does not list are read too.
+    """
+    suite_dir = Path(suite_dir)
+    other_kinds = {
+        job["name"] for job in (index or {}).get("jobs", []) if job.get("kind", "train") != "train"
+    }
+    names = sorted(
+        path.relative_to(suite_dir).as_posix()
+        for path in suite_dir.glob("*/*")
+        if path.is_dir() and _is_training_run(path)
+    )
+    return RunTable(tuple(load_record(suite_dir, n) for n in names if n not in other_kinds))

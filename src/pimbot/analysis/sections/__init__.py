@@ -1,0 +1,1 @@
+"""Report sections: one provider per part of the paper, and a generic one for other runs."""

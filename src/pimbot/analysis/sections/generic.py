@@ -1,0 +1,108 @@
+"""Training runs no paper section reported (a user's `pimbot sweep`, say): one section per
+group with success curves per condition, final metrics and attack effects vs clean."""
+
+from __future__ import annotations
+
+import re
+
+from pimbot.analysis import plots
+from pimbot.analysis.document import Context, Section
+from pimbot.analysis.runs import (
+    CLEAN,
+    NO_DEFENSE,
+    RunRecord,
+    RunTable,
+    condition_key,
+    distinct_env_labels,
+    natural_key,
+)
+from pimbot.analysis.tables import Table, difference, estimate
+
+STYLES = ("-", "--", ":", "-.")
+"""Line style per defense set within a panel (colour is the condition)."""
+
+
+def section(table: RunTable, ctx: Context) -> Section | None:
+    """Every training run no other section claimed: a figure and a table per group."""
+    rest = [r for r in table.records if r.name not in ctx.claimed]
+    if not rest:
+        return None
+    out = Section(
+        "Other training runs",
+        text=[
+            "Runs no paper section reads (a `pimbot sweep` grid, say), labelled from their "
+            "configs. Final = mean of the last 10 evaluation points per seed, [95 % bootstrap "
+            "CI over seeds]; margin = the adversary's env return minus the mean of the "
+            "others'; Δ = this run − the clean run of the same env, learner and defenses "
+            "(seeds resampled independently)."
+        ],
+    )
+    for group in sorted({r.group for r in rest}):
+        figure, result = group_results(table, [r for r in rest if r.group == group], group, ctx)
+        out.figures.append(figure)
+        out.tables.append(result)
+    return out
+
+
+def learner_label(run: RunRecord) -> str:
+    return run.learner + (f" ({run.hparams})" if run.hparams else "")
+
+
+def sort_key(run: RunRecord, envs: dict) -> tuple:
+    return (
+        natural_key(envs[run.env_key]),
+        learner_label(run),
+        run.defenses != NO_DEFENSE,
+        run.defenses,
+        condition_key(run.condition),
+        run.name,
+    )
+
+
+def group_results(table: RunTable, runs: list[RunRecord], group: str, ctx: Context):
+    """(success curves, final-metric table) of one group's runs."""
+    ctx.claim(runs)
+    envs = distinct_env_labels(runs)
+    runs = sorted(runs, key=lambda r: sort_key(r, envs))
+    colors = table.colors
+    slug = re.sub(r"[^A-Za-z0-9_.-]+", "_", group)
+    panels: dict[str, list] = {}
+    for run in runs:
+        lines = panels.setdefault(f"{envs[run.env_key]} · {learner_label(run)}", [])
+        sets = sorted({r.defenses for r in runs if r.cell[:3] == run.cell[:3]})
+        label = run.condition if run.defenses == NO_DEFENSE else f"{run.condition} | {run.defenses}"
+        if any(label == line[1] for line in lines):  # same labels: tell them apart by setting
+            label += f" [{run.setting}]"
+        style = STYLES[sets.index(run.defenses) % len(STYLES)]
+        lines.append((run, label, colors[run.condition], style))
+    path, figure = ctx.figure(
+        f"{slug}_success.png", f"{group}: success per condition (mean over seeds, 95 % CI band)"
+    )
+    plots.curve_panels(list(panels.items()), "eval/success", "success", path, min(3, len(panels)))
+    rows = []
+    for run in runs:
+        success = run.per_seed("eval/success")
+        margin = run.per_seed("eval/adversary_margin_env")
+        base = table.clean_for(run) if run.condition != CLEAN else None
+        rows.append(
+            [
+                envs[run.env_key],
+                learner_label(run),
+                run.defenses,
+                run.condition,
+                run.seeds,
+                run.iterations,
+                estimate(success),
+                estimate(margin, 2, signed=True),
+                None if base is None else difference(success, base.per_seed("eval/success")),
+                None
+                if base is None
+                else difference(margin, base.per_seed("eval/adversary_margin_env"), 2),
+                run.setting,
+            ]
+        )
+    header = ["env", "learner", "defenses", "condition", "seeds", "iterations"]
+    header += ["final success [CI]", "adversary margin [CI]", "Δ success vs clean [CI]"]
+    header += ["Δ margin vs clean [CI]", "run"]
+    title = f"{group}: {len(runs)} run(s), final metrics and effects vs clean"
+    return figure, Table(header, rows, title, name=slug)
