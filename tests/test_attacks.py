@@ -9,13 +9,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pimbot import attacks, envs
+from pimbot import attacks, envs, learners
 from pimbot.attacks import admo
 from pimbot.learners import lio, pg
 from pimbot.rollout import received, rollout
 
 ENV = envs.make("escape_room-v0", n_agents=3, min_at_lever=1)
-CFG = lio.default_config(ENV)
+CFG = learners.default_config("lio", "escape_room-v0")
 PM, IM = lio._modules(ENV, CFG)
 
 
@@ -107,7 +107,9 @@ def test_bypass_always_plays_the_idle_action():
 def test_bypass_toggle_alternates_every_k_environment_steps():
     attack = attacks.make("bypass", 3, toggle_period=3)
     actions = jnp.array([2, 2, 2])
-    played = [int(attack.act(actions, ENV.idle_action, jnp.int32(t))[0]) for t in range(9)]
+    played = [
+        int(attack.act({}, None, actions, ENV.idle_action, jnp.int32(t))[0]) for t in range(9)
+    ]
     assert played == [1, 1, 1, 2, 2, 2, 1, 1, 1]
 
 
@@ -130,10 +132,10 @@ def test_recipients_receive_exactly_c_under_fake_incentive():
 def test_budget_zeroes_incentives_once_exceeded():
     attack = attacks.make("admo", 3, adversary=0, budget=1.0)
     given_so_far = jnp.zeros((3, 3))
-    scale, _ = attack.emit(3, given_so_far)
-    assert float(scale[0]) == 1.0
-    scale, _ = attack.emit(3, given_so_far.at[0, 1].set(1.5))
-    assert float(scale[0]) == 0.0 and float(scale[1]) == 1.0
+    scale, _ = attack.emit({}, None, given_so_far)
+    assert float(scale[0, 1]) == 1.0
+    scale, _ = attack.emit({}, None, given_so_far.at[0, 1].set(1.5))
+    assert np.all(np.asarray(scale[0]) == 0.0) and np.all(np.asarray(scale[1]) == 1.0)
     # In an episode: once a's cumulative incentives exceed B_a it emits nothing.
     for seed in range(3):
         traj = _play(attack, seed)
@@ -155,7 +157,7 @@ def _actual_and_modelled(attack, seed=3):
     traj = _play(attack, seed, policy_seed=seed)
     eps = jnp.float32(0.3)
     actual = jax.jit(lio.actual_update, static_argnums=(0, 1, 2))(
-        ENV, CFG, attack, state.policy, traj, eps
+        ENV, CFG, attack, {}, state.policy, traj, eps
     )
     modelled = jax.jit(lio.recipient_update, static_argnums=(0, 1))(
         ENV, CFG, state.policy, state.incentive, traj, eps
@@ -209,7 +211,7 @@ def test_admo_freezes_the_learners_own_step_for_the_adversary():
 )
 def test_every_attack_runs_under_jit_and_vmap_over_seeds(name, params):
     env = envs.make("escape_room-v0")
-    cfg = lio.default_config(env)
+    cfg = learners.default_config("lio", "escape_room-v0")
     attack = attacks.make(name, 2, **params)
     keys = jax.random.split(jax.random.PRNGKey(0), 3)
     states = jax.vmap(lambda k: lio.init(k, env, cfg, attack))(keys)
@@ -233,7 +235,7 @@ def test_every_attack_runs_under_jit_and_vmap_over_seeds(name, params):
 
 def test_pg_supports_policy_attacks():
     env = envs.make("escape_room-v0")
-    cfg = pg.default_config(env)
+    cfg = learners.default_config("pg", "escape_room-v0")
     for attack in (attacks.make("bypass", 2), attacks.make("reverse", 2)):
         state = pg.init(jax.random.PRNGKey(0), env, cfg, attack)
         state, _ = jax.jit(pg.update, static_argnums=(1, 2, 3))(state, env, cfg, attack)
@@ -242,7 +244,7 @@ def test_pg_supports_policy_attacks():
 
 def test_admo_moves_only_the_adversarys_parameters_beyond_the_lio_step():
     env = envs.make("escape_room-v0")
-    cfg = dataclasses.replace(lio.default_config(env), lr_cost=0.0)
+    cfg = dataclasses.replace(learners.default_config("lio", "escape_room-v0"), lr_cost=0.0)
     attack = attacks.make("admo", 2, adversary=0)
     state = lio.init(jax.random.PRNGKey(1), env, cfg, attack)
     new_state, metrics = jax.jit(lio.update, static_argnums=(1, 2, 3))(state, env, cfg, attack)

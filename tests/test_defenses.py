@@ -7,16 +7,17 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from pimbot import attacks, cli, defenses, envs, nets
+from pimbot import attacks, cli, defenses, envs, learners, nets
+from pimbot.contracts import defense as defense_hooks
+from pimbot.contracts.attack import NO_ATTACK
+from pimbot.contracts.defense import EpsilonContext
 from pimbot.defenses import guard as guard_lib
-from pimbot.defenses import hooks
 from pimbot.defenses import monitor as monitor_lib
 from pimbot.envs.core import InvalidParameter
 from pimbot.learners import lio
-from pimbot.rollout import NO_ATTACK
 
 ENV = envs.make("escape_room-v0")  # ER(2,1), T = 5, 3 actions
-CFG = lio.default_config(ENV)
+CFG = learners.default_config("lio", "escape_room-v0")
 R_MAX = CFG.incentive_max
 ALL_HONEST = jnp.ones((2,), bool)
 
@@ -108,12 +109,17 @@ def test_guard_is_transparent_to_honest_lio_incentives():
 
 def test_floor_lifts_only_honest_agents():
     floor = defenses.make("exploration_floor", 3, min_epsilon=0.3)
-    d = defenses.Defenses(floor=floor)
-    honest = hooks.honest_agents(attacks.make("bypass", 3, adversary=1), 3)
-    eps = hooks.acting_epsilon(d, jnp.float32(0.1), honest)
-    np.testing.assert_allclose(eps, [0.3, 0.1, 0.3])
-    np.testing.assert_allclose(hooks.acting_epsilon(d, jnp.float32(0.5), honest), [0.5] * 3)
-    assert hooks.acting_epsilon(defenses.NO_DEFENSE, jnp.float32(0.1), honest).ndim == 0
+    d = (floor,)
+    honest = defense_hooks.honest_agents(attacks.make("bypass", 3, adversary=1), 3)
+    np.testing.assert_allclose(_epsilon(d, 0.1, honest), [0.3, 0.1, 0.3])
+    np.testing.assert_allclose(_epsilon(d, 0.5, honest), [0.5] * 3)
+    assert _epsilon(defenses.NO_DEFENSE, 0.1, honest).ndim == 0
+
+
+def _epsilon(defense_set, epsilon, honest):
+    states = defense_hooks.init_states(defense_set, honest.shape[0], None)
+    ctx = EpsilonContext(jnp.float32(epsilon), honest)
+    return defense_hooks.acting_epsilon(defense_set, states, ctx)
 
 
 def _trained_under_fake_incentive(defense_set, iterations=150):
@@ -127,8 +133,8 @@ def _trained_under_fake_incentive(defense_set, iterations=150):
         )
     )
     state, _ = run(state)
-    honest = hooks.honest_agents(fake, 2)
-    epsilon = hooks.acting_epsilon(defense_set, jnp.float32(cfg.epsilon_end), honest)
+    honest = defense_hooks.honest_agents(fake, 2)
+    epsilon = _epsilon(defense_set, cfg.epsilon_end, honest)
     # The honest agent's acting distribution on the observations of fresh episodes.
     traj = jax.vmap(
         lambda k: lio.rollout(
@@ -277,14 +283,14 @@ def test_all_defenses_train_under_jit_and_vmap_and_detect_the_fake_incentive(fak
     alarms = np.asarray(metrics["defense/monitor_alarms_by_giver"])  # [seed, it, giver]
     assert alarms[:, :, 0].sum(axis=1).min() >= 1  # every seed flags the adversary (agent 0)
     assert alarms[:, :, 1].sum() == 0
-    assert np.all(np.asarray(states.defense_state["monitor"]["first_alarm"]) <= 80)
+    assert np.all(np.asarray(states.defense_state[2]["first_alarm"]) <= 80)
     assert np.asarray(metrics["defense/guard_clipped"])[:, 0].min() >= 1
     for leaf in jax.tree.leaves(states.policy):
         assert np.all(np.isfinite(np.asarray(leaf)))
 
 
 def test_defense_config_errors_name_the_field():
-    with pytest.raises(InvalidParameter, match="^min_epsilon: must be a number in"):
+    with pytest.raises(InvalidParameter, match="^min_epsilon: must be > 0 and ≤ 1"):
         defenses.make("exploration_floor", 2, min_epsilon=0.0)
     with pytest.raises(InvalidParameter, match="^budget_fraction"):
         defenses.make("incentive_guard", 2, budget_fraction=-1.0)

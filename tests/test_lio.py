@@ -7,12 +7,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from pimbot import envs, nets
+from pimbot import envs, learners, nets
 from pimbot.learners import lio, pg
 from pimbot.rollout import discounted_returns, rollout
 
 ENV = envs.make("escape_room-v0", n_agents=3, min_at_lever=1)
-CFG = lio.default_config(ENV)
+CFG = learners.default_config("lio", "escape_room-v0")
 
 
 def test_discounted_returns_by_hand():
@@ -208,7 +208,7 @@ def test_each_giver_updates_only_its_own_incentive_net():
 
 def test_shared_incentive_variant_equals_default_for_two_agents():
     env = envs.make("escape_room-v0")
-    cfg = lio.default_config(env)
+    cfg = learners.default_config("lio", "escape_room-v0")
     shared = dataclasses.replace(cfg, original_shared_incentive_updates=True)
     key = jax.random.PRNGKey(9)
     a, _ = jax.jit(lio.update, static_argnums=(1, 2))(lio.init(key, env, cfg), env, cfg)

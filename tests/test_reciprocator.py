@@ -7,17 +7,18 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from pimbot import envs
+from pimbot import envs, learners
 from pimbot.attacks import ADMO, Bypass, Reverse
+from pimbot.contracts.attack import NO_ATTACK
 from pimbot.envs.core import InvalidParameter
 from pimbot.experiment.config import RunConfig, resolve
 from pimbot.learners import influence, reciprocator
-from pimbot.rollout import NO_ATTACK, rollout
+from pimbot.rollout import rollout
 
 IPD = envs.make("ipd-v0")
 # Small networks and batches: the tests check the mechanics, not learning speed.
 SMALL = dataclasses.replace(
-    reciprocator.default_config(IPD),
+    learners.default_config("reciprocator", "ipd-v0"),
     num_envs=8,
     policy_hidden=(16,),
     voi_hidden=(16,),
@@ -121,7 +122,7 @@ def test_weight_zero_is_exactly_the_naive_ppo_update():
     def both(state):
         naive, metrics = reciprocator.update(state, IPD, naive_cfg)
         _, play_key, _ = jax.random.split(state.key, 3)
-        trajs = reciprocator.play_batch(IPD, SMALL, state.policy, play_key, NO_ATTACK, 0)
+        trajs = reciprocator.play_batch(IPD, SMALL, state.policy, play_key, NO_ATTACK, 0, {})
         returns = reciprocator.normalized_returns(trajs.env_rewards, trajs.valid, SMALL.gamma)
         policy, _, _ = reciprocator.ppo_update(
             IPD, SMALL, state.policy, state.value, state.opt, trajs, returns, jnp.ones((2,))
@@ -181,7 +182,7 @@ def test_n_player_shapes_under_jit_and_vmap(env_id, params, attack):
 
 def test_attacks_without_an_incentive_channel():
     for learner in ("reciprocator", "nl"):
-        with pytest.raises(InvalidParameter, match="no incentive channel"):
+        with pytest.raises(InvalidParameter, match="fake_incentive acts at the hook point.s. emit"):
             resolve(RunConfig("ipd-v0", learner=learner, attack="fake_incentive"))
         for name in ("self_centered", "bypass", "reverse", "admo"):
             assert resolve(RunConfig("ipd-v0", learner=learner, attack=name)).attack.name == name
@@ -191,12 +192,12 @@ def test_self_centered_adversary_learns_from_env_reward_only():
     resolved = resolve(RunConfig("ipd-v0", learner="reciprocator", attack="self_centered"))
     env_rewards = jnp.ones((2, 5, 2))
     reciprocal = jnp.full((2, 5, 2), 3.0)
-    rewards = resolved.attack.learning_rewards(env_rewards, reciprocal)
+    rewards = resolved.attack.learning_rewards({}, env_rewards, reciprocal)
     np.testing.assert_allclose(rewards[..., 0], 1.0)
     np.testing.assert_allclose(rewards[..., 1], 4.0)
 
 
 def test_default_configs():
-    assert reciprocator.default_config(IPD).reciprocal_weight == 5.0
-    assert reciprocator.default_config(envs.make("stag_hunt-v0")).reciprocal_weight == 1.0
-    assert reciprocator.naive_config(IPD).reciprocal_weight == 0.0
+    assert learners.default_config("reciprocator", "ipd-v0").reciprocal_weight == 5.0
+    assert learners.default_config("reciprocator", "stag_hunt-v0").reciprocal_weight == 1.0
+    assert learners.default_config("nl", "ipd-v0").reciprocal_weight == 0.0

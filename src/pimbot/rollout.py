@@ -13,10 +13,8 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from pimbot.attacks.strategies import Attack
+from pimbot.contracts.attack import NO_ATTACK, Attack, attack_key
 from pimbot.envs.core import Env
-
-NO_ATTACK = Attack()
 
 # act(key, obs [N, obs_dim]) -> actions int32 [N]
 ActFn = Callable[[jax.Array, jax.Array], jax.Array]
@@ -32,7 +30,7 @@ class Trajectory:
     actions: jax.Array  # int32 [T, N]
     env_rewards: jax.Array  # float32 [T, N], zero on invalid steps
     incentives: jax.Array  # float32 [T, N, N] (giver, recipient) emitted, zero on invalid steps
-    incentive_scale: jax.Array  # float32 [T, N]: emitted = scale · learned + offset (attacks)
+    incentive_scale: jax.Array  # float32 [T, N, N]: emitted = scale · learned + offset (attacks)
     incentive_offset: jax.Array  # float32 [T, N, N]
     valid: jax.Array  # bool [T], the step took place
     success: jax.Array  # bool [T], info["success"] of the step
@@ -65,23 +63,28 @@ def decide(
     give: GiveFn | None,
     attack: Attack,
     env_step: jax.Array | int,
+    attack_state=None,
 ):
     """One joint decision as training plays it: the observation with the incentives
     given so far, the attack's actions and its emission of the learned incentives.
 
     Args:
         obs: [N, obs_dim] from the env; given: [N, N] incentives emitted so far this episode.
+        attack_state: the attack's per-seed state ({} when it keeps none).
     Returns:
-        (filled obs, actions int32 [N], incentives emitted [N, N], scale [N], offset [N, N]).
+        (filled obs, actions int32 [N], incentives emitted [N, N], scale [N, N], offset [N, N]).
     """
     n = env.num_agents
+    state = {} if attack_state is None else attack_state
+    act_key, emit_key = jax.random.split(attack_key(key))
     obs = fill_incentive_obs(env, obs, given)
-    actions = attack.act(act(key, obs).astype(jnp.int32), env.idle_action, env_step)
-    scale, offset = attack.emit(n, given)
+    actions = act(key, obs).astype(jnp.int32)
+    actions = attack.act(state, act_key, actions, env.idle_action, env_step)
+    scale, offset = attack.emit(state, emit_key, given)
     if give is None:
         incentives = jnp.zeros((n, n), jnp.float32)
     else:
-        incentives = scale[:, None] * give(obs, actions) + offset
+        incentives = scale * give(obs, actions) + offset
     return obs, actions, incentives, scale, offset
 
 
@@ -92,6 +95,7 @@ def rollout(
     give: GiveFn | None = None,
     attack: Attack = NO_ATTACK,
     env_step0: jax.Array | int = 0,
+    attack_state=None,
 ) -> Trajectory:
     """Plays one episode from `env.reset`.
 
@@ -103,6 +107,7 @@ def rollout(
         attack: consulted for the actions played and the incentives emitted.
         env_step0: environment steps taken in training before this episode
             (for attacks that switch on and off over time).
+        attack_state: the attack's per-seed state (read-only during the episode).
     """
     n = env.num_agents
     reset_key, steps_key = jax.random.split(key)
@@ -113,7 +118,7 @@ def rollout(
         step_key, t = inputs
         act_key, env_key = jax.random.split(step_key)
         obs, actions, incentives, scale, offset = decide(
-            env, act_key, obs, given, act, give, attack, env_step0 + t
+            env, act_key, obs, given, act, give, attack, env_step0 + t, attack_state
         )
         incentives = incentives * alive
         next_obs, next_state, rewards, done, info = env.step(env_key, state, actions)

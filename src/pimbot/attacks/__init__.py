@@ -1,36 +1,35 @@
 """Manipulations of one agent (spec/attacks.md): strategy attacks and ADMO, by name.
 
-`make(name, **params)` builds a validated attack config; `registered()` lists
-names; `parameters(name)` gives each parameter's default and description.
+`make(name, num_agents, **params)` builds a validated attack config;
+`register(cls)` adds a user's attack (the built-ins register the same way);
+`registered()` lists names; `parameters(name)` gives each parameter's default.
 """
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 from pimbot.attacks.admo import ADMO
-from pimbot.attacks.strategies import Attack, Bypass, FakeIncentive, Reverse, SelfCentered
+from pimbot.attacks.strategies import Bypass, FakeIncentive, Reverse, SelfCentered
+from pimbot.contracts import attack as contract
+from pimbot.contracts.attack import NO_ATTACK, Attack, register
 from pimbot.envs.core import InvalidParameter
 
-ATTACKS: dict[str, type[Attack]] = {
-    cls.name: cls for cls in (SelfCentered, FakeIncentive, Bypass, Reverse, ADMO)
-}
+for _cls in (SelfCentered, FakeIncentive, Bypass, Reverse, ADMO):
+    register(_cls, replace=True)
 
 
 def registered() -> list[str]:
-    return list(ATTACKS)
+    return contract.ATTACKS.names()
 
 
 def attack_class(name: str) -> type[Attack]:
-    if name not in ATTACKS:
-        raise InvalidParameter(f"attack: unknown attack {name!r}; allowed: {', '.join(ATTACKS)}")
-    return ATTACKS[name]
+    return contract.ATTACKS.get(name)
 
 
 def parameters(name: str) -> dict[str, Any]:
     """The attack's parameters and their defaults."""
-    return {f.name: f.default for f in dataclasses.fields(attack_class(name)) if f.init}
+    return contract.parameters(attack_class(name))
 
 
 def make(name: str, num_agents: int, **params: Any) -> Attack:
@@ -51,4 +50,14 @@ def make(name: str, num_agents: int, **params: Any) -> Attack:
     return attack
 
 
-__all__ = ["ADMO", "Attack", "Bypass", "FakeIncentive", "Reverse", "SelfCentered", "make"]
+__all__ = [
+    "ADMO",
+    "NO_ATTACK",
+    "Attack",
+    "Bypass",
+    "FakeIncentive",
+    "Reverse",
+    "SelfCentered",
+    "make",
+    "register",
+]

@@ -1,8 +1,9 @@
 """ADMO — adaptive multi-objective manipulation (spec/attacks.md).
 
 The adversary a's parameters ω = [θ_a, η_a] are trained by ADMO instead of its
-normal update. Per iteration, on the trajectories the learner already has
-(τ with θ, τ̂ with the updated policies):
+normal update (its `adversary_step`, written once against the learner's
+`AdversaryView`: LIO shows it τ̂, the episode played with the updated policies;
+a Reciprocator its batch, where ω = θ_a and r = env reward). Per iteration:
 
 * L_inc = −Σ_t γ^t (r_t^a − mean_{j≠a} r_t^j) + β_b·Σ_t γ^t Σ_j u_t^{a→j}   (raise its margin)
 * L_pol = −s·Σ_t γ^t Σ_j r_t^j + λ_d·½‖θ_a − θ_ref‖²    (s = +1 stealthy, −1 disrupt)
@@ -10,7 +11,8 @@ normal update. Per iteration, on the trajectories the learner already has
 with r^j = env reward + incentives received, measured on τ̂. Gradients w.r.t.
 θ_a by the score function (stop-gradient returns); w.r.t. η_a through the
 recipients' one-step updates exactly as LIO's meta-gradient, plus the direct
-dependence of the rewards on the incentives. The two gradients are combined
+dependence of the rewards on the incentives (where the learner has an incentive
+channel; losses are means over the view's episodes). The two gradients are combined
 with the closed-form KKT (Pareto) weights under adaptive lower bounds c,
 clipped, and applied with AdamW. Every `ref_period` iterations the reference
 policy is refreshed. Once the incentives a gave in an episode exceed the budget
@@ -18,15 +20,15 @@ B_a, a emits nothing until the episode ends.
 
 Adaptive bounds (the paper leaves the rule open; this is our decision, all
 rates configurable): c1 = c_init + c1_variance_gain · EMA(variance of the
-incentives a receives on τ); c2 grows by c2_step after each `stall_window`
-iterations in which the EMA of team success moved less than
-`stall_threshold`, and shrinks by c2_step otherwise; both clipped to
+signal a receives: incentives on τ, or the influence others exert on it); c2
+grows by c2_step after each `stall_window` iterations in which the EMA of team
+success moved less than `stall_threshold`, and shrinks by c2_step otherwise;
+both clipped to
 [c_min, c_max] (c_max < 0.5 keeps c1 + c2 < 1).
 """
 
 from __future__ import annotations
 
-import dataclasses
 from typing import ClassVar
 
 import jax
@@ -35,17 +37,19 @@ import optax
 from flax import struct
 from jax.flatten_util import ravel_pytree
 
-from pimbot.attacks.strategies import Attack, _check_number
-from pimbot.rollout import Trajectory, discounted_returns, received
+from pimbot.contracts.attack import AdversaryView, AgentParams, Attack
+from pimbot.contracts.params import check_int, check_number
+from pimbot.envs.core import InvalidParameter
+from pimbot.rollout import discounted_returns, received
 
 MODES = {"stealthy": 1.0, "disrupt": -1.0}
 
 
-@dataclasses.dataclass(frozen=True)
+@struct.dataclass
 class ADMO(Attack):
     """Adaptive multi-objective manipulation of agent `adversary`."""
 
-    mode: str = "disrupt"
+    mode: str = struct.field(pytree_node=False, default="disrupt")
     """"stealthy" (s = +1: keep team welfare up while raising its margin) or "disrupt" (s = −1)."""
     lr: float = 1e-3
     """AdamW learning rate on ω = [θ_a, η_a]."""
@@ -84,11 +88,10 @@ class ADMO(Attack):
 
     name: ClassVar[str] = "admo"
     lever: ClassVar[str] = "incentive + policy"
-    needs_incentives: ClassVar[bool] = True
+    hooks: ClassVar[tuple[str, ...]] = ("policy_sign", "adversary_step")
+    """Its incentive budget (`emit`) applies where the learner has an incentive channel."""
 
     def validate(self, num_agents: int) -> None:
-        from pimbot.envs.core import InvalidParameter
-
         super().validate(num_agents)
         if self.mode not in MODES:
             raise InvalidParameter(
@@ -108,13 +111,9 @@ class ADMO(Attack):
             "c2_step",
             "stall_threshold",
         ):
-            _check_number(name, getattr(self, name))
-            if getattr(self, name) < 0:
-                raise InvalidParameter(f"{name}: must be ≥ 0, got {getattr(self, name)}")
+            check_number(name, getattr(self, name), low=0.0)
         for name in ("ref_period", "stall_window"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise InvalidParameter(f"{name}: must be an integer ≥ 1, got {value!r}")
+            check_int(name, getattr(self, name), 1)
         if not 0 <= self.c_min <= self.c_init <= self.c_max < 0.5:
             raise InvalidParameter(
                 "c_init: need 0 ≤ c_min ≤ c_init ≤ c_max < 0.5, got "
@@ -127,17 +126,36 @@ class ADMO(Attack):
     def sign(self) -> float:
         return MODES[self.mode]
 
-    def emit(self, num_agents, given_so_far):
-        is_adv = self.is_adversary(num_agents)
+    def emit(self, state, key, given_so_far):
+        del state, key
+        n = given_so_far.shape[0]
         over = given_so_far[self.adversary].sum() > self.budget
-        return jnp.where(is_adv & over, 0.0, 1.0), jnp.zeros((num_agents, num_agents))
+        scale = jnp.where(self.is_adversary(n) & over, 0.0, 1.0)
+        return jnp.broadcast_to(scale[:, None], (n, n)), jnp.zeros((n, n))
 
-    def policy_sign(self, num_agents):
-        # The adversary's policy is moved by ADMO's own step, not by the learner's.
+    def policy_sign(self, state, num_agents):
+        del state  # the adversary's policy is moved by ADMO's own step, not the learner's
         return jnp.where(self.is_adversary(num_agents), 0.0, 1.0)
 
     def optimizer(self) -> optax.GradientTransformation:
         return optax.adamw(self.lr, weight_decay=self.weight_decay)
+
+    def init_state(self, key, num_agents, adversary: AgentParams) -> ADMOState:
+        del key, num_agents
+        zero = jnp.zeros((), jnp.float32)
+        return ADMOState(
+            opt=self.optimizer().init((adversary.policy, adversary.incentive)),
+            theta_ref=adversary.policy,
+            lambda_d=jnp.asarray(self.lambda_d, jnp.float32),
+            bounds=jnp.full((2,), self.c_init, jnp.float32),
+            variance_ema=zero,
+            success_ema=zero,
+            success_ema_at_window=zero,
+        )
+
+    def adversary_step(self, state, key, view):
+        del key
+        return step(self, state, view)
 
 
 @struct.dataclass
@@ -149,19 +167,6 @@ class ADMOState:
     variance_ema: jax.Array
     success_ema: jax.Array
     success_ema_at_window: jax.Array
-
-
-def init_state(attack: ADMO, theta_a, eta_a) -> ADMOState:
-    zero = jnp.zeros((), jnp.float32)
-    return ADMOState(
-        opt=attack.optimizer().init((theta_a, eta_a)),
-        theta_ref=theta_a,
-        lambda_d=jnp.asarray(attack.lambda_d, jnp.float32),
-        bounds=jnp.full((2,), attack.c_init, jnp.float32),
-        variance_ema=zero,
-        success_ema=zero,
-        success_ema_at_window=zero,
-    )
 
 
 def kkt_weights(g_inc: jax.Array, g_pol: jax.Array, bounds: jax.Array) -> jax.Array:
@@ -236,20 +241,6 @@ def update_bounds(attack: ADMO, state: ADMOState, received_var, success, iterati
     )
 
 
-def objective_rewards(attack: ADMO, num_agents: int, emitted: jax.Array, traj: Trajectory):
-    """Per-step margin, team reward and incentives given by a: each [T].
-
-    Args:
-        emitted: [T, N, N] incentives on `traj` (a function of η when differentiated).
-    """
-    a = attack.adversary
-    given = emitted * traj.valid[:, None, None]
-    rewards = traj.env_rewards + received(given)  # [T, N]
-    others = (jnp.arange(num_agents) != a).astype(rewards.dtype)
-    margin = rewards[:, a] - (rewards * others).sum(axis=1) / (num_agents - 1)
-    return margin, rewards.sum(axis=1), given[:, a, :].sum(axis=1)
-
-
 def weighted_step(attack: ADMO, state: ADMOState, flat_inc, flat_pol, unravel, params):
     """KKT weights α, then one clipped AdamW step on `params` along α·(g_inc, g_pol).
 
@@ -316,103 +307,96 @@ def step_metrics(
     }
 
 
-def step(
-    attack: ADMO,
-    state: ADMOState,
-    *,
-    theta,
-    eta,
-    adversary_log_probs,
-    emitted_fn,
-    pull_recipients,
-    pull_incentives,
-    first_traj: Trajectory,
-    new_traj: Trajectory,
-    success,
-    gamma: float,
-    iteration,
-):
-    """One ADMO update of ω = [θ_a, η_a].
+def along_time(fn, values: jax.Array) -> jax.Array:
+    """`fn` over the last (time) axis of `values` [B..., T], vmapped over batch axes."""
+    for _ in range(values.ndim - 1):
+        fn = jax.vmap(fn)
+    return fn(values)
 
-    Args:
-        theta, eta: stacked policy / incentive parameters (the adversary's row is ω).
-        adversary_log_probs: fn(θ_a) -> [T] log π_θa(â^a_t | ô^a_t) on τ̂ (ε-mixed, as played).
-        emitted_fn: fn(η, traj) -> [T, N, N] incentives emitted on `traj`.
-        pull_recipients: pulls a cotangent on the recipients' log-probs [T, N] on τ̂
-            back to the incentives they received on τ ([T, N]) — LIO's second-order path.
-        pull_incentives: pulls a cotangent on the incentives [T, N, N] on τ back to η.
-        first_traj, new_traj: τ and τ̂.
-        success: team success of τ.
+
+def step(attack: ADMO, state: ADMOState, view: AdversaryView):
+    """One ADMO update of ω = [θ_a, η_a] on the learner's view.
+
     Returns:
-        (θ_a, η_a, state, metrics)
+        (new ω, new state, `admo/*` metrics).
     """
     a = attack.adversary
-    n = first_traj.actions.shape[1]
-    theta_a = jax.tree.map(lambda x: x[a], theta)
-    eta_a = jax.tree.map(lambda x: x[a], eta)
-    valid = new_traj.valid.astype(jnp.float32)
-    discount = gamma ** jnp.arange(valid.shape[0]) * valid
+    n = view.env_rewards.shape[-1]
+    channel = view.incentive is not None
+    theta_a = jax.tree.map(lambda x: x[a], view.policy)
+    eta_a = jax.tree.map(lambda x: x[a], view.incentive) if channel else {}
+    valid = view.valid.astype(jnp.float32)
+    episodes = valid.size // valid.shape[-1]
+    discount = view.gamma ** jnp.arange(valid.shape[-1]) * valid
+    others = (jnp.arange(n) != a).astype(jnp.float32)
+
+    def objectives(rewards):
+        """Per-step margin of a and team reward: each [B..., T]."""
+        margin = rewards[..., a] - (rewards * others).sum(axis=-1) / (n - 1)
+        return margin, rewards.sum(axis=-1)
 
     def direct_losses(eta_all):
-        margin, team, given = objective_rewards(attack, n, emitted_fn(eta_all, new_traj), new_traj)
-        loss_inc = -jnp.sum(discount * margin) + attack.beta_budget * jnp.sum(discount * given)
+        given = view.emitted(eta_all) * view.valid[..., None, None]
+        margin, team = objectives(view.env_rewards + received(given))
+        spent = given[..., a, :].sum(axis=-1)
+        loss_inc = -jnp.sum(discount * margin) + attack.beta_budget * jnp.sum(discount * spent)
         loss_pol = -attack.sign * jnp.sum(discount * team)
-        return jnp.stack([loss_inc, loss_pol]), (margin, team)
+        return jnp.stack([loss_inc, loss_pol]) / episodes, (margin, team)
 
-    losses, pull_direct, (margin, team) = jax.vjp(direct_losses, eta, has_aux=True)
+    if channel:
+        losses, pull_direct, (margin, team) = jax.vjp(direct_losses, view.incentive, has_aux=True)
+    else:
+        margin, team = objectives(view.env_rewards)
+        losses = jnp.stack([-jnp.sum(discount * margin), -attack.sign * jnp.sum(discount * team)])
+        losses = losses / episodes
     # Score-function weights: reward-to-go of each objective's per-step reward.
-    to_go = (
-        jnp.stack(
-            [discounted_returns(margin, gamma), attack.sign * discounted_returns(team, gamma)]
-        )
-        * valid
-    )  # [2, T]
-    to_go = jax.lax.stop_gradient(to_go)
+    to_go = jnp.stack(
+        [
+            along_time(lambda m: discounted_returns(m, view.gamma), margin),
+            attack.sign * along_time(lambda w: discounted_returns(w, view.gamma), team),
+        ]
+    )
+    to_go = jax.lax.stop_gradient(to_go * valid)  # [2, B..., T]
 
-    # θ_a: REINFORCE surrogate on τ̂.
+    # θ_a: REINFORCE surrogate on the judged batch.
     def theta_surrogate(theta_adv, weights):
-        return -jnp.sum(adversary_log_probs(theta_adv) * weights)
+        return -jnp.sum(view.log_probs(theta_adv) * weights) / episodes
 
     theta_grads = jax.vmap(jax.grad(theta_surrogate), in_axes=(None, 0))(theta_a, to_go)
     drift = jax.tree.map(lambda p, r: p - r, theta_a, state.theta_ref)
     theta_grads = jax.tree.map(lambda g, d: g.at[1].add(state.lambda_d * d), theta_grads, drift)
 
-    # η_a: through the recipients' updates (as LIO), plus the direct dependence.
-    others = (jnp.arange(n) != a).astype(jnp.float32)
-    cotangents = -to_go[:, :, None] * others[None, None, :]  # [2, T, N]
-    d_received = jax.vmap(pull_recipients)(cotangents)  # [2, T, N]
-    row_a = jax.nn.one_hot(a, n)[None, None, :, None]  # only a's own incentives
-    eta_score = jax.vmap(pull_incentives)(d_received[:, :, None, :] * row_a)
-    (eta_direct,) = jax.vmap(pull_direct)(jnp.eye(2))
-    eta_grads = jax.tree.map(lambda s, d: (s + d)[:, a], eta_score, eta_direct)
+    eta_grads: dict = {}
+    if channel:
+        # η_a: through the recipients' updates (as LIO), plus the direct dependence.
+        cotangents = -to_go[..., None] * others  # [2, T, N]
+        eta_score = jax.vmap(view.meta_pullback)(cotangents)
+        (eta_direct,) = jax.vmap(pull_direct)(jnp.eye(2))
+        eta_grads = jax.tree.map(lambda s, d: (s + d)[:, a], eta_score, eta_direct)
 
-    flat_inc, unravel = ravel_pytree(
-        (jax.tree.map(lambda g: g[0], theta_grads), jax.tree.map(lambda g: g[0], eta_grads))
-    )
-    flat_pol, _ = ravel_pytree(
-        (jax.tree.map(lambda g: g[1], theta_grads), jax.tree.map(lambda g: g[1], eta_grads))
-    )
+    first = lambda tree, k: jax.tree.map(lambda g: g[k], tree)  # noqa: E731
+    flat_inc, unravel = ravel_pytree((first(theta_grads, 0), first(eta_grads, 0)))
+    flat_pol, _ = ravel_pytree((first(theta_grads, 1), first(eta_grads, 1)))
     alpha, skip, (theta_new, eta_new), opt = weighted_step(
         attack, state, flat_inc, flat_pol, unravel, (theta_a, eta_a)
     )
     d_proxy = 0.5 * sum(jnp.sum(d**2) for d in jax.tree.leaves(drift))
-    theta_ref, lambda_d = refresh_reference(attack, state, theta_new, iteration)
+    theta_ref, lambda_d = refresh_reference(attack, state, theta_new, view.iteration)
 
-    received_var = masked_variance(
-        received(first_traj.incentives)[:, a], first_traj.valid.astype(jnp.float32)
-    )
+    received_var = masked_variance(view.received, view.received_valid.astype(jnp.float32))
     new_state = update_bounds(
         attack,
         state.replace(opt=opt, theta_ref=theta_ref, lambda_d=lambda_d),
         received_var,
-        success,
-        iteration,
+        view.success,
+        view.iteration,
     )
-
-    budget_hits = sum(
-        jnp.sum((t.incentive_scale[:, a] == 0) & t.valid) for t in (first_traj, new_traj)
-    )
+    budget_hits = None
+    if channel:
+        budget_hits = sum(
+            jnp.sum(jnp.all(scale[:, a] == 0, axis=-1) & ok) for scale, ok in view.emission_scales
+        )
     metrics = step_metrics(
         state, alpha, skip, flat_inc, flat_pol, losses, d_proxy, budget_hits=budget_hits
     )
-    return theta_new, eta_new, new_state, metrics
+    return AgentParams(theta_new, eta_new), new_state, metrics

@@ -1,53 +1,46 @@
 """Defenses against manipulation of incentive-based MARL (spec/defenses.md), by name.
 
-Training-time defenses (consulted by LIO at named hooks, composable):
-`incentive_guard`, `exploration_floor`, `health_monitor`. `make(name, **params)`
-builds a validated config, `compose([(name, params), ...])` the `Defenses` of a
-run; `registered()` lists names; `parameters(name)` gives defaults.
-Deployment-layer defenses: `channel` (authenticated incentive messages) and
-`audit` (hash-chained, tamper-evident log).
+Training-time defenses, folded over at the hook points of
+`pimbot.contracts.defense` in the order given: `incentive_guard`,
+`exploration_floor`, `health_monitor`. `make(name, **params)` builds a
+validated config, `compose([(name, params), ...])` a run's tuple of them;
+`register(cls)` adds a user's defense; `registered()` lists names;
+`parameters(name)` gives defaults. Deployment-layer defenses: `channel`
+(authenticated incentive messages) and `audit` (keyed, tamper-evident log).
 """
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Iterable
 from typing import Any
 
+from pimbot.contracts import defense as contract
+from pimbot.contracts.defense import NO_DEFENSE, Defense, Defenses, register
 from pimbot.defenses.exploration import ExplorationFloor
 from pimbot.defenses.guard import IncentiveGuard
-from pimbot.defenses.hooks import NO_DEFENSE, Defenses
 from pimbot.defenses.monitor import HealthMonitor
 from pimbot.envs.core import InvalidParameter
 
-DEFENSES: dict[str, type] = {
-    cls.name: cls for cls in (IncentiveGuard, ExplorationFloor, HealthMonitor)
-}
-SLOTS = {
-    IncentiveGuard.name: "guard",
-    ExplorationFloor.name: "floor",
-    HealthMonitor.name: "monitor",
-}
+for _cls in (IncentiveGuard, ExplorationFloor, HealthMonitor):
+    register(_cls, replace=True)
 
 
 def registered() -> list[str]:
-    return list(DEFENSES)
+    return contract.DEFENSES.names()
 
 
-def defense_class(name: str) -> type:
-    if name not in DEFENSES:
-        raise InvalidParameter(
-            f"defenses: unknown defense {name!r}; allowed: {', '.join(DEFENSES)}"
-        )
-    return DEFENSES[name]
+def defense_class(name: str) -> type[Defense]:
+    return contract.DEFENSES.get(name)
 
 
 def parameters(name: str) -> dict[str, Any]:
     """The defense's parameters and their defaults."""
+    import dataclasses
+
     return {f.name: f.default for f in dataclasses.fields(defense_class(name)) if f.init}
 
 
-def make(name: str, num_agents: int, **params: Any):
+def make(name: str, num_agents: int, **params: Any) -> Defense:
     """A validated defense config.
 
     Raises:
@@ -66,19 +59,18 @@ def make(name: str, num_agents: int, **params: Any):
 
 
 def compose(specs: Iterable[tuple[str, dict[str, Any]]], num_agents: int) -> Defenses:
-    """The `Defenses` of a run from (name, params) pairs; each defense at most once."""
-    slots: dict[str, Any] = {}
+    """A run's defenses from (name, params) pairs, in the order given; each at most once."""
+    made: list[Defense] = []
     for name, params in specs:
-        defense = make(name, num_agents, **dict(params))
-        slot = SLOTS[name]
-        if slot in slots:
+        if any(d.name == name for d in made):
             raise InvalidParameter(f"defenses: {name} given twice; give each defense once")
-        slots[slot] = defense
-    return Defenses(**slots)
+        made.append(make(name, num_agents, **dict(params)))
+    return tuple(made)
 
 
 __all__ = [
     "NO_DEFENSE",
+    "Defense",
     "Defenses",
     "ExplorationFloor",
     "HealthMonitor",
@@ -86,5 +78,6 @@ __all__ = [
     "compose",
     "make",
     "parameters",
+    "register",
     "registered",
 ]

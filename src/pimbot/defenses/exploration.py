@@ -9,32 +9,33 @@ Evaluation (ε = 0) is unchanged.
 
 from __future__ import annotations
 
-import dataclasses
 from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
+from flax import struct
+
+from pimbot.contracts.defense import Defense, EpsilonContext
+from pimbot.contracts.params import check_number
 
 
-@dataclasses.dataclass(frozen=True)
-class ExplorationFloor:
+@struct.dataclass
+class ExplorationFloor(Defense):
     """Keep every honest agent's exploration weight ε at or above a floor."""
 
     min_epsilon: float = 0.2
     """The floor on ε of honest agents' acting policy (ER's schedule ends at 0.1, IPD's at 0.01)."""
 
     name: ClassVar[str] = "exploration_floor"
+    hooks: ClassVar[tuple[str, ...]] = ("acting_epsilon",)
 
     def validate(self, num_agents: int) -> None:
-        import math
-
-        from pimbot.envs.core import InvalidParameter
-
         del num_agents
-        value = self.min_epsilon
-        ok = not isinstance(value, bool) and isinstance(value, int | float) and math.isfinite(value)
-        if not ok or not 0.0 < value <= 1.0:
-            raise InvalidParameter(f"min_epsilon: must be a number in (0, 1], got {value!r}")
+        check_number("min_epsilon", self.min_epsilon, low=0.0, high=1.0, strict_low=True)
+
+    def acting_epsilon(self, state, ctx: EpsilonContext) -> jax.Array:
+        del state
+        return floored_epsilon(self, ctx.epsilon, ctx.honest)
 
 
 def floored_epsilon(floor: ExplorationFloor, epsilon: jax.Array, honest: jax.Array) -> jax.Array:

@@ -16,17 +16,21 @@ Everything is jit/vmap-able; the history is a ring buffer in the learner state.
 
 from __future__ import annotations
 
-import dataclasses
 from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
+from flax import struct
+
+from pimbot.contracts.defense import Defense, IncentiveContext
+from pimbot.contracts.params import check_int, check_number
+from pimbot.envs.core import InvalidParameter
 
 MAD_TO_SIGMA = 1.4826  # MAD of a normal distribution × this = its standard deviation
 
 
-@dataclasses.dataclass(frozen=True)
-class IncentiveGuard:
+@struct.dataclass
+class IncentiveGuard(Defense):
     """Clip received incentives to [0, R_max], cap them per episode, drop outliers."""
 
     budget_fraction: float = 1.0
@@ -35,7 +39,7 @@ class IncentiveGuard:
     outlier_z: float = 8.0
     """Drop a giver's incentives for an episode when the robust z-score of their mean per
     step against the giver's own history exceeds this; 0 disables the outlier check."""
-    history: int = 32
+    history: int = struct.field(pytree_node=False, default=32)
     """Episodes of each giver's history kept for the outlier check."""
     min_history: int = 8
     """Episodes of history needed before outliers are judged."""
@@ -44,22 +48,26 @@ class IncentiveGuard:
     same value would otherwise make any change an outlier)."""
 
     name: ClassVar[str] = "incentive_guard"
+    hooks: ClassVar[tuple[str, ...]] = ("learning_incentives",)
 
     def validate(self, num_agents: int) -> None:
-        from pimbot.envs.core import InvalidParameter
-
         del num_agents
-        _check_float("budget_fraction", self.budget_fraction, low=0.0, strict=True)
-        _check_float("outlier_z", self.outlier_z, low=0.0)
-        _check_float("min_scale", self.min_scale, low=0.0, strict=True)
+        check_number("budget_fraction", self.budget_fraction, low=0.0, strict_low=True)
+        check_number("outlier_z", self.outlier_z, low=0.0)
+        check_number("min_scale", self.min_scale, low=0.0, strict_low=True)
         for name in ("history", "min_history"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise InvalidParameter(f"{name}: must be an integer ≥ 1, got {value!r}")
+            check_int(name, getattr(self, name), 1)
         if self.min_history > self.history:
             raise InvalidParameter(
                 f"min_history: must be ≤ history = {self.history}, got {self.min_history}"
             )
+
+    def init_state(self, num_agents: int, policy) -> dict[str, jax.Array]:
+        del policy
+        return init_state(self, num_agents)
+
+    def learning_incentives(self, state, ctx: IncentiveContext):
+        return apply(self, state, ctx.accepted, ctx.valid, ctx.incentive_max, ctx.honest)
 
 
 def init_state(guard: IncentiveGuard, num_agents: int) -> dict[str, jax.Array]:
@@ -130,14 +138,3 @@ def apply(
         ),
     }
     return accepted, new_state, metrics
-
-
-def _check_float(name: str, value, low: float, strict: bool = False) -> None:
-    import math
-
-    from pimbot.envs.core import InvalidParameter
-
-    bound = f"> {low:g}" if strict else f"≥ {low:g}"
-    ok = not isinstance(value, bool) and isinstance(value, int | float) and math.isfinite(value)
-    if not ok or value < low or (strict and value == low):
-        raise InvalidParameter(f"{name}: must be a number {bound}, got {value!r}")

@@ -30,19 +30,22 @@ Everything is jit/vmap-able.
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable
 from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
+from flax import struct
+
+from pimbot.contracts.defense import Defense, IncentiveContext, PolicyStepContext
+from pimbot.contracts.params import check_int, check_number
 
 FAST_RATE = 0.1  # EMA rate of the fast welfare average
 SLOW_RATE = 0.01  # EMA rate of the slow welfare average
 
 
-@dataclasses.dataclass(frozen=True)
-class HealthMonitor:
+@struct.dataclass
+class HealthMonitor(Defense):
     """Welfare trend, incentive variance and gradient conflict; alarm → fallback + cool-down."""
 
     stats_rate: float = 0.05
@@ -64,34 +67,48 @@ class HealthMonitor:
     """Iterations between checkpoints of a recipient's last good policy."""
 
     name: ClassVar[str] = "health_monitor"
+    hooks: ClassVar[tuple[str, ...]] = ("learning_incentives", "after_policy_step")
 
     def validate(self, num_agents: int) -> None:
-        import math
-
-        from pimbot.envs.core import InvalidParameter
-
         del num_agents
-        for name in ("stats_rate",):
-            value = getattr(self, name)
-            if not _is_number(value) or not 0.0 < value <= 1.0:
-                raise InvalidParameter(f"{name}: must be a number in (0, 1], got {value!r}")
+        check_number("stats_rate", self.stats_rate, low=0.0, high=1.0, strict_low=True)
         for name in ("variance_threshold", "conflict_threshold", "welfare_drop"):
-            value = getattr(self, name)
-            if not _is_number(value) or value < 0 or not math.isfinite(value):
-                raise InvalidParameter(f"{name}: must be a number ≥ 0, got {value!r}")
+            check_number(name, getattr(self, name), low=0.0)
         for name, low in (
             ("patience", 1),
             ("warmup", 0),
             ("cooldown", 0),
             ("checkpoint_period", 1),
         ):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise InvalidParameter(f"{name}: must be an integer ≥ {low}, got {value!r}")
+            check_int(name, getattr(self, name), low)
 
+    def init_state(self, num_agents: int, policy) -> dict[str, Any]:
+        return init_state(num_agents, policy)
 
-def _is_number(value: Any) -> bool:
-    return not isinstance(value, bool) and isinstance(value, int | float)
+    def learning_incentives(self, state, ctx: IncentiveContext):
+        """Recipients refuse the givers they are cooling down from."""
+        refusing = refused(state) & ctx.honest[None, :]
+        accepted = jnp.where(refusing[None], 0.0, ctx.accepted)
+        return (
+            accepted,
+            state,
+            {"defense/monitor_refused_pairs": refusing.sum().astype(jnp.float32)},
+        )
+
+    def after_policy_step(self, state, ctx: PolicyStepContext):
+        return step(
+            self,
+            state,
+            ctx.iteration,
+            ctx.sent,
+            ctx.valid,
+            ctx.env_rewards.sum(),
+            ctx.gradients,
+            ctx.env_rewards,
+            ctx.policy,
+            ctx.incentive_max,
+            ctx.honest,
+        )
 
 
 def init_state(num_agents: int, policy) -> dict[str, Any]:

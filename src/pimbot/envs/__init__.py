@@ -13,25 +13,55 @@ from pimbot.envs.escape_room import EscapeRoom
 from pimbot.envs.matrix_games import IteratedPrisonersDilemma, MatrixGame, StagHuntMatrix
 from pimbot.envs.stag_hunt import StagHunt
 
+# The original codes' hyperparameter columns: LIO's and PG's Escape Room column is their
+# base config; the IPD column (no incentive cost: reg_coeff 0) serves the other games.
+# The Reciprocator's base is its IPD config (w = 5); elsewhere w = 1.
+_LIO_IPD_COLUMN = {
+    "policy_hidden": (16, 8),
+    "incentive_hidden": (16, 8),
+    "lr_policy": 1e-3,
+    "lr_incentive": 1e-3,
+    "lr_cost": 0.0,
+    "incentive_max": 3.0,
+    "entropy_coef": 0.1,
+    "epsilon_start": 1.0,
+    "epsilon_end": 0.01,
+    "epsilon_decay_iters": 5000,
+}
+_PG_IPD_COLUMN = {
+    "policy_hidden": (16, 8),
+    "lr_policy": 1e-3,
+    "entropy_coef": 0.1,
+    "epsilon_start": 1.0,
+    "epsilon_end": 0.01,
+    "epsilon_decay_iters": 5000,
+}
+_RECIPROCATOR_W1 = {"reciprocal_weight": 1.0}
+_OTHER_GAMES = {"lio": _LIO_IPD_COLUMN, "pg": _PG_IPD_COLUMN, "reciprocator": _RECIPROCATOR_W1}
+
 register(
     "escape_room-v0",
     EscapeRoom,
     "Escape Room ER(N,M): M agents must pull the lever so that the others can exit by the door.",
+    learner_defaults={"reciprocator": _RECIPROCATOR_W1},
 )
 register(
     "ipd-v0",
     IteratedPrisonersDilemma,
     "Iterated prisoner's dilemma, N players: the mean of the pairwise payoffs (LIO's for N=2).",
+    learner_defaults={"lio": _LIO_IPD_COLUMN, "pg": _PG_IPD_COLUMN},
 )
 register(
     "stag_hunt-v0",
     StagHunt,
     "Stag Hunt gridworld: all N hunters on the stag pay +5 each, a hare pays +1 to its hunter.",
+    learner_defaults=_OTHER_GAMES,
 )
 register(
     "stag_hunt_matrix-v0",
     StagHuntMatrix,
     "Repeated N-player matrix Stag Hunt: stag pays 5 if all choose stag, else 0; hare pays 1.",
+    learner_defaults=_OTHER_GAMES,
 )
 
 __all__ = [

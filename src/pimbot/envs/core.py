@@ -9,7 +9,7 @@ vmap-able. Variants are parameters, never copied classes.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
 import jax
@@ -80,11 +80,14 @@ class Env(Protocol):
 
 @dataclasses.dataclass(frozen=True)
 class EnvSpec:
-    """A registry entry: the id, the constructor, and a one-line description."""
+    """A registry entry: the id, the constructor, a one-line description, and the
+    hyperparameters each learner should default to on this environment."""
 
     env_id: str
     constructor: Callable[..., Env]
     description: str
+    learner_defaults: Mapping[str, Mapping[str, Any]] = dataclasses.field(default_factory=dict)
+    """learner name -> hyperparameter overrides of its base config on this environment."""
 
     def parameters(self) -> dict[str, Any]:
         """The constructor's parameters with their defaults."""
@@ -98,11 +101,23 @@ class EnvSpec:
 _REGISTRY: dict[str, EnvSpec] = {}
 
 
-def register(env_id: str, constructor: Callable[..., Env], description: str) -> None:
-    """Adds an environment constructor under a versioned id (e.g. ``"my_env-v0"``)."""
-    if env_id in _REGISTRY:
+def register(
+    env_id: str,
+    constructor: Callable[..., Env],
+    description: str,
+    learner_defaults: Mapping[str, Mapping[str, Any]] | None = None,
+) -> None:
+    """Adds an environment constructor under a versioned id (e.g. ``"my_env-v0"``).
+
+    Args:
+        learner_defaults: per learner name, the hyperparameters it should use here
+            (e.g. ``{"lio": {"lr_policy": 1e-3}}``); learners not named keep their base
+            config.
+    """
+    entry = EnvSpec(env_id, constructor, description, dict(learner_defaults or {}))
+    if env_id in _REGISTRY and _REGISTRY[env_id] != entry:
         raise ValueError(f"env id {env_id!r} is already registered")
-    _REGISTRY[env_id] = EnvSpec(env_id, constructor, description)
+    _REGISTRY[env_id] = entry
 
 
 def registered() -> list[str]:

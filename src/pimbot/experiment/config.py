@@ -12,8 +12,8 @@ import dataclasses
 from typing import Any
 
 from pimbot import attacks, defenses, envs, learners
+from pimbot.contracts.attack import NO_ATTACK
 from pimbot.envs.core import InvalidParameter
-from pimbot.rollout import NO_ATTACK
 
 DEFAULT_EVAL = {  # (eval_period, eval_episodes) by environment family, as the original
     "escape_room-v0": (100, 10),
@@ -93,10 +93,9 @@ class ResolvedRun:
 
     def _defense_identity(self) -> dict[str, Any]:
         # Absent without defenses, so runs made before defenses existed keep their identity.
-        if not self.defenses.active:
+        if not self.defenses:
             return {}
-        configs = (self.defenses.guard, self.defenses.floor, self.defenses.monitor)
-        return {"defenses": {d.name: dataclasses.asdict(d) for d in configs if d is not None}}
+        return {"defenses": {d.name: dataclasses.asdict(d) for d in self.defenses}}
 
 
 def env_parameters(env: Any) -> dict[str, Any]:
@@ -127,7 +126,7 @@ def resolve(run: RunConfig) -> ResolvedRun:
         raise InvalidParameter(
             f"iterations: must be a multiple of eval_period = {eval_period}, got {run.iterations}"
         )
-    defaults = learner.default_config(env)
+    defaults = learner.default_config(envs.spec(run.env_id))
     fields = {f.name: f for f in dataclasses.fields(defaults)}
     overrides = {}
     for name, value in run.hparams:
@@ -140,28 +139,31 @@ def resolve(run: RunConfig) -> ResolvedRun:
     attack = NO_ATTACK
     if run.attack is not None:
         attack = attacks.make(run.attack, env.num_agents, **dict(run.attack_params))
-        own = learner.reinterpreted_attacks
-        if attack.needs_incentives and not learner.has_incentives and run.attack not in own:
-            usable = [
-                n
-                for n in attacks.registered()
-                if not attacks.ATTACKS[n].needs_incentives or n in own
-            ]
-            raise InvalidParameter(
-                f"attack: {run.attack} manipulates incentives, and learner {run.learner} has no "
-                f"incentive channel; attacks usable with {run.learner}: {', '.join(usable)}"
-            )
-    run_defenses = defenses.NO_DEFENSE
-    if run.defenses:
-        if run.learner != "lio":
-            raise InvalidParameter(
-                f"defenses: defenses hook into LIO's incentive channel; learner {run.learner} "
-                "has none (use --learner lio)"
-            )
-        run_defenses = defenses.compose(run.defenses, env.num_agents)
+        known = {n: attacks.attack_class(n).hooks for n in attacks.registered()}
+        check_hooks("attack", run.attack, attack.hooks, learner.attack_hooks, run.learner, known)
+    run_defenses = defenses.compose(run.defenses, env.num_agents)
+    known = {n: defenses.defense_class(n).hooks for n in defenses.registered()}
+    for defense in run_defenses:
+        check_hooks(
+            "defenses", defense.name, defense.hooks, learner.defense_hooks, run.learner, known
+        )
     return ResolvedRun(
         run, env, learner, learner_config, eval_period, eval_episodes, attack, run_defenses
     )
+
+
+def check_hooks(field: str, name: str, needed, consulted, learner: str, others) -> None:
+    """Fails naming the hook points of attack/defense `name` that `learner` never consults.
+
+    `others`: name -> hooks of every registered attack (or defense), for the hint.
+    """
+    missing = [hook for hook in needed if hook not in consulted]
+    if missing:
+        usable = [other for other, hooks in others.items() if set(hooks) <= set(consulted)]
+        raise InvalidParameter(
+            f"{field}: {name} acts at the hook point(s) {', '.join(missing)}, which learner "
+            f"{learner} does not have; usable with {learner}: {', '.join(usable) or 'none'}"
+        )
 
 
 def coerce_like(name: str, value: Any, default: Any) -> Any:

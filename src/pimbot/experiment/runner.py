@@ -82,24 +82,21 @@ def reduce_eval(env, per_episode: dict[str, jax.Array], adversary: int) -> dict[
     return out
 
 
-def defense_args(resolved: ResolvedRun) -> tuple:
-    """Extra learner arguments: the run's defenses, or nothing (learners without hooks)."""
-    return (resolved.defenses,) if resolved.defenses.active else ()
-
-
 def make_chunk_fn(resolved: ResolvedRun, num_periods: int):
     """A jitted function running `num_periods` evaluation periods for every seed.
 
-    Returns fn(states [S], eval_roots [S]) -> (states, metrics with leaves [S, num_periods, ...]).
+    The attack and the defenses are arguments, not constants: their numeric
+    parameters are traced, so runs that differ only in them share the program.
+
+    Returns fn(states [S], eval_roots [S], attack, defenses) -> (states, metrics with
+    leaves [S, num_periods, ...]).
     """
     env, learner, cfg = resolved.env, resolved.learner, resolved.learner_config
-    attack = resolved.attack
-    defended = defense_args(resolved)
 
-    def one_seed(state, eval_root):
+    def one_seed(state, eval_root, attack, defenses):
         def period(state, _):
             state, train = jax.lax.scan(
-                lambda s, _: learner.update(s, env, cfg, attack, *defended),
+                lambda s, _: learner.update(s, env, cfg, attack, defenses),
                 state,
                 None,
                 length=resolved.eval_period,
@@ -117,7 +114,14 @@ def make_chunk_fn(resolved: ResolvedRun, num_periods: int):
 
         return jax.lax.scan(period, state, None, length=num_periods)
 
-    return jax.jit(jax.vmap(one_seed))
+    return jax.jit(jax.vmap(one_seed, in_axes=(0, 0, None, None)))
+
+
+def init_states(resolved: ResolvedRun, init_keys: jax.Array):
+    """Every seed's initial learner state [S, ...]."""
+    env, learner, cfg = resolved.env, resolved.learner, resolved.learner_config
+    init = jax.vmap(lambda k, a, d: learner.init(k, env, cfg, a, d), in_axes=(0, None, None))
+    return jax.jit(init)(init_keys, resolved.attack, resolved.defenses)
 
 
 def metric_rows(resolved: ResolvedRun, chunk_metrics, seeds: list[int], perf: dict) -> list[dict]:
@@ -219,10 +223,7 @@ def train(
     keys = seed_keys(run.first_seed, padded)
     init_keys = jax.vmap(lambda k: jax.random.fold_in(k, 0))(keys)
     eval_roots = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
-    env, learner, cfg = resolved.env, resolved.learner, resolved.learner_config
-    attack = resolved.attack
-    defended = defense_args(resolved)
-    states = jax.jit(jax.vmap(lambda k: learner.init(k, env, cfg, attack, *defended)))(init_keys)
+    states = init_states(resolved, init_keys)
 
     done = 0
     saved = store.load_checkpoint(run_dir)
@@ -237,20 +238,22 @@ def train(
     period = resolved.eval_period
     per_chunk = evals_per_chunk(resolved.num_evals, period, chunk_iterations)
     t0 = time.perf_counter()
-    chunk_fn = make_chunk_fn(resolved, per_chunk).lower(states, eval_roots).compile()
+    attack, defenses = resolved.attack, resolved.defenses
+    chunk_fn = make_chunk_fn(resolved, per_chunk).lower(states, eval_roots, attack, defenses)
+    chunk_fn = chunk_fn.compile()
     compile_s = time.perf_counter() - t0
 
     title = f"{run.learner} {run.env_id} ×{run.seeds}"
     if run.attack:
         title += f" {run.attack}"
-    if resolved.defenses.active:
-        title += " +" + "+".join(resolved.defenses.names())
+    if resolved.defenses:
+        title += " +" + "+".join(d.name for d in resolved.defenses)
     bar = Progress(title, run.iterations, done, enabled=progress)
     columns: list[str] | None = None
     try:
         while done < run.iterations:
             t_chunk = time.perf_counter()
-            states, chunk_metrics = chunk_fn(states, eval_roots)
+            states, chunk_metrics = chunk_fn(states, eval_roots, attack, defenses)
             jax.block_until_ready(states)
             chunk_s = time.perf_counter() - t_chunk
             done += per_chunk * period

@@ -1,89 +1,80 @@
-"""Learners: one module each, with pure `init` / `update` / `evaluate` and a frozen config.
-
-`get(name)` returns the learner's definition; `registered()` lists names.
+"""Learners: one module each, with pure `init` / `update` / `evaluate` / `acting` and a
+frozen config, registered through `pimbot.contracts.learner.register` (as a user's
+plugin learner is). `get(name)` returns a learner's definition; `registered()` lists names.
 """
 
 from __future__ import annotations
 
-import dataclasses
-from collections.abc import Callable
-from typing import Any
-
-from pimbot.envs.core import InvalidParameter
+from pimbot.contracts import learner as contract
+from pimbot.contracts.learner import LearnerDef, register
 from pimbot.learners import lio, pg, reciprocator
 
+_ALL_ATTACK_HOOKS = ("act", "emit", "learning_rewards", "policy_sign", "adversary_step", "observe")
+_NO_CHANNEL_HOOKS = ("act", "learning_rewards", "policy_sign", "adversary_step", "observe")
 
-@dataclasses.dataclass(frozen=True)
-class LearnerDef:
-    """What the runner needs to train a learner."""
-
-    name: str
-    config_cls: type
-    default_config: Callable[[Any], Any]
-    init: Callable
-    update: Callable
-    evaluate: Callable
-    description: str
-    has_incentives: bool
-    """Whether the learner has an incentive channel (incentive attacks need one)."""
-    reinterpreted_attacks: tuple[str, ...] = ()
-    """Incentive-lever attacks this learner without incentives defines through its own
-    levers (Reciprocator: self-centered = a naive-learner adversary, ADMO on its policy)."""
-
-
-_LEARNERS = {
-    "pg": LearnerDef(
+for _definition in (
+    LearnerDef(
         "pg",
+        "independent REINFORCE on environment reward (no incentives)",
         pg.PGConfig,
-        pg.default_config,
         pg.init,
         pg.update,
         pg.evaluate,
-        "independent REINFORCE on environment reward (no incentives)",
-        has_incentives=False,
+        pg.acting,
+        attack_hooks=("act", "policy_sign", "observe"),
+        defense_hooks=("acting_epsilon",),
     ),
-    "lio": LearnerDef(
+    LearnerDef(
         "lio",
+        "LIO: learned incentives trained through the recipients' policy updates",
         lio.LIOConfig,
-        lio.default_config,
         lio.init,
         lio.update,
         lio.evaluate,
-        "LIO: learned incentives trained through the recipients' policy updates",
+        lio.acting,
+        attack_hooks=_ALL_ATTACK_HOOKS,
+        defense_hooks=("acting_epsilon", "learning_incentives", "after_policy_step"),
         has_incentives=True,
     ),
-    "reciprocator": LearnerDef(
+    LearnerDef(
         "reciprocator",
-        reciprocator.ReciprocatorConfig,
-        reciprocator.default_config,
-        reciprocator.init,
-        reciprocator.update,
-        reciprocator.evaluate,
         "Reciprocator: PPO on env reward + learned reciprocal reward (no incentives)",
-        has_incentives=False,
-        reinterpreted_attacks=("self_centered", "admo"),
-    ),
-    "nl": LearnerDef(
-        "nl",
         reciprocator.ReciprocatorConfig,
-        reciprocator.naive_config,
         reciprocator.init,
         reciprocator.update,
         reciprocator.evaluate,
-        "naive learner: the Reciprocator's PPO with reciprocal weight 0",
-        has_incentives=False,
-        reinterpreted_attacks=("self_centered", "admo"),
+        reciprocator.acting,
+        attack_hooks=_NO_CHANNEL_HOOKS,
     ),
-}
+    LearnerDef(
+        "nl",
+        "naive learner: the Reciprocator's PPO with reciprocal weight 0",
+        reciprocator.ReciprocatorConfig,
+        reciprocator.init,
+        reciprocator.update,
+        reciprocator.evaluate,
+        reciprocator.acting,
+        attack_hooks=_NO_CHANNEL_HOOKS,
+        base_overrides=(("reciprocal_weight", 0.0),),
+        env_defaults_of="reciprocator",
+    ),
+):
+    register(_definition, replace=True)
 
 
 def registered() -> list[str]:
-    return sorted(_LEARNERS)
+    return sorted(contract.LEARNERS.names())
 
 
 def get(name: str) -> LearnerDef:
-    if name not in _LEARNERS:
-        raise InvalidParameter(
-            f"learner: unknown learner {name!r}; allowed: {', '.join(registered())}"
-        )
-    return _LEARNERS[name]
+    return contract.LEARNERS.get(name)
+
+
+def default_config(name: str, env_id: str):
+    """Learner `name`'s config on environment `env_id` (its declared defaults applied)."""
+    from pimbot import envs
+
+    return get(name).default_config(envs.spec(env_id))
+
+
+__all__ = ["LearnerDef", "default_config", "get", "register", "registered"]

@@ -10,6 +10,7 @@ One iteration, per seed and for all agents at once (spec/lio.md):
      of that surrogate at θ̂(η), nothing hand-derived — plus a separate cost
      step on the discounted sigmoid outputs it gave on τ;
   5. θ ← θ̂.
+Attacks and defenses are consulted at the hook points named in `update`.
 """
 
 from __future__ import annotations
@@ -23,25 +24,32 @@ import optax
 from flax import struct
 
 from pimbot import nets
-from pimbot.attacks import admo
-from pimbot.attacks.strategies import Attack
-from pimbot.defenses import hooks as defense_hooks
-from pimbot.defenses.hooks import NO_DEFENSE, Defenses
-from pimbot.envs.core import Env
-from pimbot.learners.pg import act_fn, epsilon_at, policy_step, reinforce_loss
-from pimbot.rollout import (
+from pimbot.contracts import defense as defense_hooks
+from pimbot.contracts.attack import (
     NO_ATTACK,
-    Trajectory,
-    discounted_returns,
-    episode_metrics,
-    received,
-    rollout,
+    AdversaryView,
+    AgentParams,
+    Attack,
+    Outcome,
+    attack_key,
 )
+from pimbot.contracts.defense import (
+    NO_DEFENSE,
+    Defenses,
+    EpsilonContext,
+    IncentiveContext,
+    PolicyStepContext,
+)
+from pimbot.contracts.learner import Actor
+from pimbot.envs.core import Env
+from pimbot.learners.pg import act_fn, epsilon_at, evaluate_actor, policy_step, reinforce_loss
+from pimbot.rollout import Trajectory, discounted_returns, episode_metrics, received, rollout
 
 
 @dataclasses.dataclass(frozen=True)
 class LIOConfig:
-    """LIO hyperparameters (defaults: the original Escape Room config)."""
+    """LIO hyperparameters (defaults: the original Escape Room column; other games declare
+    the IPD column at their registration)."""
 
     policy_hidden: tuple[int, ...] = (64, 32)
     """Hidden layer widths of the policy MLP."""
@@ -71,27 +79,6 @@ class LIOConfig:
     Off by default (spec: each giver updates only its own η); same as off for N = 2."""
 
 
-def default_config(env: Env) -> LIOConfig:
-    """The original per-environment defaults: ER column for Escape Room, IPD column elsewhere.
-
-    The original IPD config has no incentive cost (reg_coeff 0): lr_cost = 0 there.
-    """
-    if env.incentive_obs:  # Escape Room
-        return LIOConfig()
-    return LIOConfig(
-        policy_hidden=(16, 8),
-        incentive_hidden=(16, 8),
-        lr_policy=1e-3,
-        lr_incentive=1e-3,
-        lr_cost=0.0,
-        incentive_max=3.0,
-        entropy_coef=0.1,
-        epsilon_start=1.0,
-        epsilon_end=0.01,
-        epsilon_decay_iters=5000,
-    )
-
-
 @struct.dataclass
 class LIOState:
     policy: dict  # stacked policy parameters θ, leaves [N, ...]
@@ -99,7 +86,7 @@ class LIOState:
     incentive_opt: optax.OptState  # Adam state of the meta-gradient step
     cost_opt: optax.OptState  # Adam state of the cost step
     attack_state: Any  # the attack's own state (ADMO's), else an empty dict
-    defense_state: Any  # the defenses' own state (guard history, monitor), else an empty dict
+    defense_state: tuple  # each defense's own state (guard history, monitor), in order
     key: jax.Array
     iteration: jax.Array  # int32 []
     env_steps: jax.Array  # int32 [], environment steps taken in training
@@ -170,19 +157,24 @@ def init(
         incentive=incentive,
         incentive_opt=_init_meta_opt(cfg, incentive, n),
         cost_opt=optax.adam(cfg.lr_cost).init(incentive),
-        attack_state=_init_attack_state(attack, policy, incentive),
-        defense_state=defense_hooks.init_state(defenses, n, policy),
+        attack_state=attack.init_state(
+            attack_key(key),
+            n,
+            AgentParams(_row(policy, attack.adversary), _row(incentive, attack.adversary)),
+        ),
+        defense_state=defense_hooks.init_states(defenses, n, policy),
         key=key,
         iteration=jnp.zeros((), jnp.int32),
         env_steps=jnp.zeros((), jnp.int32),
     )
 
 
-def _init_attack_state(attack: Attack, policy, incentive):
-    if isinstance(attack, admo.ADMO):
-        own = lambda stacked: jax.tree.map(lambda x: x[attack.adversary], stacked)  # noqa: E731
-        return admo.init_state(attack, own(policy), own(incentive))
-    return {}
+def _row(stacked, agent: int):
+    return jax.tree.map(lambda x: x[agent], stacked)
+
+
+def _set_row(stacked, agent: int, own):
+    return jax.tree.map(lambda x, o: x.at[agent].set(o), stacked, own)
 
 
 def emitted(env, cfg, incentive, traj: Trajectory) -> jax.Array:
@@ -196,7 +188,7 @@ def emitted(env, cfg, incentive, traj: Trajectory) -> jax.Array:
     learned = cfg.incentive_max * sigmoid_outputs(
         incentive_module, incentive, traj.obs, traj.actions, env.num_actions
     )
-    return learned * traj.incentive_scale[..., None] + traj.incentive_offset
+    return learned * traj.incentive_scale + traj.incentive_offset
 
 
 def ordinary_step(env, cfg, policy, traj: Trajectory, received_incentives, epsilon):
@@ -229,7 +221,9 @@ def recipient_update(env, cfg, policy, incentive, traj: Trajectory, epsilon):
     )
 
 
-def actual_update(env, cfg, attack: Attack, policy, traj: Trajectory, epsilon, accepted=None):
+def actual_update(
+    env, cfg, attack: Attack, attack_state, policy, traj: Trajectory, epsilon, accepted=None
+):
     """Every agent's actual policy step: the ordinary one, except where the attack
     changes the adversary's learning reward (self-centered) or sign (reverse, ADMO).
 
@@ -238,7 +232,7 @@ def actual_update(env, cfg, attack: Attack, policy, traj: Trajectory, epsilon, a
     policy_module, _ = _modules(env, cfg)
     sent = traj.incentives if accepted is None else accepted
     got = received(sent) * traj.valid[:, None]
-    rewards = attack.learning_rewards(traj.env_rewards, got)
+    rewards = attack.learning_rewards(attack_state, traj.env_rewards, got)
     return policy_step(
         policy_module,
         policy,
@@ -248,7 +242,7 @@ def actual_update(env, cfg, attack: Attack, policy, traj: Trajectory, epsilon, a
         cfg.lr_policy,
         cfg.gamma,
         cfg.entropy_coef,
-        sign=attack.policy_sign(env.num_agents),
+        sign=attack.policy_sign(attack_state, env.num_agents),
     )
 
 
@@ -392,39 +386,64 @@ def update(
     defenses: Defenses = NO_DEFENSE,
 ) -> tuple[LIOState, dict[str, jax.Array]]:
     """One LIO iteration (two rollouts), with the attack and the defenses consulted at
-    their hooks."""
+    their hook points."""
     policy_module, incentive_module = _modules(env, cfg)
     key, key_first, key_second = jax.random.split(state.key, 3)
     schedule_epsilon = epsilon_at(
         state.iteration, cfg.epsilon_start, cfg.epsilon_end, cfg.epsilon_decay_iters
     )
     honest = defense_hooks.honest_agents(attack, env.num_agents)
-    epsilon = defense_hooks.acting_epsilon(defenses, schedule_epsilon, honest)
-    give = give_fn(incentive_module, state.incentive, env.num_actions, cfg.incentive_max)
+    defense_state = state.defense_state
 
-    act = act_fn(policy_module, state.policy, epsilon)
-    traj = rollout(env, key_first, act, give, attack, state.env_steps)
-    accepted, defense_state, defense_metrics = defense_hooks.learning_incentives(
-        defenses, state.defense_state, traj.incentives, traj.valid, cfg.incentive_max, honest
+    # 1. exploration (defense hook: acting_epsilon)
+    epsilon = defense_hooks.acting_epsilon(
+        defenses, defense_state, EpsilonContext(schedule_epsilon, honest)
     )
-    new_policy = actual_update(env, cfg, attack, state.policy, traj, epsilon, accepted)
+    # 2. play τ with θ and η (attack hooks: act, emit)
+    give = give_fn(incentive_module, state.incentive, env.num_actions, cfg.incentive_max)
+    act = act_fn(policy_module, state.policy, epsilon)
+    traj = rollout(env, key_first, act, give, attack, state.env_steps, state.attack_state)
+    env_steps = state.env_steps + traj.valid.sum()
+
+    # 3. every recipient's policy step θ → θ̂ on env reward + the incentives it accepts
+    #    (defense hook: learning_incentives; attack hooks: learning_rewards, policy_sign)
+    accepted, defense_state, defense_metrics = defense_hooks.learning_incentives(
+        defenses,
+        defense_state,
+        IncentiveContext(
+            traj.incentives * traj.valid[:, None, None],
+            traj.incentives,
+            traj.valid,
+            cfg.incentive_max,
+            honest,
+        ),
+    )
+    new_policy = actual_update(
+        env, cfg, attack, state.attack_state, state.policy, traj, epsilon, accepted
+    )
+    # (defense hook: after_policy_step)
     new_policy, defense_state, monitor_metrics = defense_hooks.after_policy_step(
         defenses,
         defense_state,
-        state.iteration,
-        traj.incentives,
-        traj.valid,
-        traj.env_rewards,
-        lambda r: policy_gradient_components(env, cfg, state.policy, traj, r, epsilon),
-        new_policy,
-        cfg.incentive_max,
-        honest,
+        PolicyStepContext(
+            new_policy,
+            state.iteration,
+            traj.incentives,
+            traj.valid,
+            traj.env_rewards,
+            lambda r: policy_gradient_components(env, cfg, state.policy, traj, r, epsilon),
+            cfg.incentive_max,
+            honest,
+        ),
     )
-    env_steps = state.env_steps + traj.valid.sum()
+
+    # 4. play τ̂ with θ̂
     act = act_fn(policy_module, new_policy, epsilon)
-    new_traj = rollout(env, key_second, act, give, attack, env_steps)
+    new_traj = rollout(env, key_second, act, give, attack, env_steps, state.attack_state)
     env_steps = env_steps + new_traj.valid.sum()
 
+    # 5. every giver's meta-gradient step on η through the recipients' updates, and the
+    #    separate cost step
     pullbacks = recipient_pullbacks(
         env, cfg, state.policy, state.incentive, traj, epsilon, new_traj
     )
@@ -440,22 +459,32 @@ def update(
     metrics = {"train/epsilon": schedule_epsilon, "train/success": success}
     metrics.update(defense_metrics)
     metrics.update(monitor_metrics)
+
+    # 6. a learning attack replaces the adversary's update (attack hook: adversary_step)
     attack_state = state.attack_state
-    if isinstance(attack, admo.ADMO):
-        new_policy, incentive, attack_state, admo_metrics = _admo_step(
+    if "adversary_step" in attack.hooks:
+        view = adversary_view(
             env,
             cfg,
             attack,
             state,
             pullbacks,
             new_policy,
-            incentive,
             traj,
             new_traj,
-            schedule_epsilon,  # the adversary runs no defense: its ε is the schedule
             success,
+            schedule_epsilon,  # the adversary runs no defense: its ε is the schedule's
         )
-        metrics.update(admo_metrics)
+        own, attack_state, attack_metrics = attack.adversary_step(
+            attack_state, attack_key(state.key), view
+        )
+        new_policy = _set_row(new_policy, attack.adversary, own.policy)
+        incentive = _set_row(incentive, attack.adversary, own.incentive)
+        metrics.update(attack_metrics)
+    # 7. the attack's own state (attack hook: observe)
+    attack_state = attack.observe(
+        attack_state, attack_key(key_first), Outcome(success, state.iteration, env_steps)
+    )
 
     new_state = LIOState(
         policy=new_policy,
@@ -471,38 +500,48 @@ def update(
     return new_state, metrics
 
 
-def _admo_step(
-    env, cfg, attack, state, pullbacks, new_policy, incentive, traj, new_traj, epsilon, success
+def adversary_view(
+    env, cfg, attack, state, pullbacks, new_policy, traj, new_traj, success, epsilon
 ):
-    """ADMO's update of the adversary's ω = [θ_a, η_a], replacing its own LIO update."""
+    """What a learning attack sees of this iteration: τ̂ judged, τ learnt from."""
     policy_module, _ = _modules(env, cfg)
     a = attack.adversary
     pull_incentives, pull_recipients = pullbacks
+    own_row = jax.nn.one_hot(a, env.num_agents)[None, :, None]  # only a's own incentives
 
-    def adversary_log_probs(theta_a):
+    def log_probs(theta_a):
         logits = policy_module.apply(theta_a, new_traj.obs[:, a])
         log_probs = nets.mixed_log_probs(logits, epsilon)
         taken = jnp.take_along_axis(log_probs, new_traj.actions[:, a, None], axis=1)[:, 0]
         return taken * new_traj.valid
 
-    theta_a, eta_a, attack_state, metrics = admo.step(
-        attack,
-        state.attack_state,
-        theta=new_policy,  # the adversary's row is unchanged: its policy sign is 0
-        eta=state.incentive,
-        adversary_log_probs=adversary_log_probs,
-        emitted_fn=lambda eta, t: emitted(env, cfg, eta, t),
-        pull_recipients=pull_recipients,
-        pull_incentives=pull_incentives,
-        first_traj=traj,
-        new_traj=new_traj,
+    def meta_pullback(cotangent):
+        return pull_incentives(pull_recipients(cotangent)[:, None, :] * own_row)
+
+    return AdversaryView(
+        policy=new_policy,  # the adversary's row is unchanged: its policy sign is 0
+        incentive=state.incentive,
+        log_probs=log_probs,
+        env_rewards=new_traj.env_rewards,
+        valid=new_traj.valid,
+        emitted=lambda eta: emitted(env, cfg, eta, new_traj),
+        meta_pullback=meta_pullback,
+        received=received(traj.incentives)[:, a],
+        received_valid=traj.valid,
+        emission_scales=tuple((t.incentive_scale, t.valid) for t in (traj, new_traj)),
         success=success,
         gamma=cfg.gamma,
         iteration=state.iteration,
     )
-    new_policy = jax.tree.map(lambda stacked, own: stacked.at[a].set(own), new_policy, theta_a)
-    incentive = jax.tree.map(lambda stacked, own: stacked.at[a].set(own), incentive, eta_a)
-    return new_policy, incentive, attack_state, metrics
+
+
+def acting(env: Env, cfg: LIOConfig, state: LIOState) -> Actor:
+    """The trained policies at ε = 0 (actions sampled) and the learned incentives."""
+    policy_module, incentive_module = _modules(env, cfg)
+    return Actor(
+        act_fn(policy_module, state.policy, jnp.float32(0.0)),
+        give_fn(incentive_module, state.incentive, env.num_actions, cfg.incentive_max),
+    )
 
 
 def evaluate(
@@ -517,10 +556,4 @@ def evaluate(
 
     The attack acts and emits during evaluation as during training.
     """
-    policy_module, incentive_module = _modules(env, cfg)
-    act = act_fn(policy_module, state.policy, jnp.float32(0.0))
-    give = give_fn(incentive_module, state.incentive, env.num_actions, cfg.incentive_max)
-    trajs = jax.vmap(lambda k: rollout(env, k, act, give, attack, state.env_steps))(
-        jax.random.split(key, episodes)
-    )
-    return jax.vmap(lambda t: episode_metrics(env, t))(trajs)
+    return evaluate_actor(key, env, acting(env, cfg, state), episodes, attack, state)

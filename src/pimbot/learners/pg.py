@@ -10,6 +10,7 @@ on env + received-incentive rewards.
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -17,14 +18,18 @@ import optax
 from flax import struct
 
 from pimbot import nets
-from pimbot.attacks.strategies import Attack
+from pimbot.contracts import defense as defense_hooks
+from pimbot.contracts.attack import NO_ATTACK, AgentParams, Attack, Outcome, attack_key
+from pimbot.contracts.defense import NO_DEFENSE, Defenses, EpsilonContext
+from pimbot.contracts.learner import Actor
 from pimbot.envs.core import Env
-from pimbot.rollout import NO_ATTACK, Trajectory, discounted_returns, episode_metrics, rollout
+from pimbot.rollout import Trajectory, discounted_returns, episode_metrics, rollout
 
 
 @dataclasses.dataclass(frozen=True)
 class PGConfig:
-    """Hyperparameters of the policy-gradient baseline (defaults: the original ER config)."""
+    """Hyperparameters of the policy-gradient baseline (defaults: the original ER column;
+    other games declare the IPD column at their registration)."""
 
     policy_hidden: tuple[int, ...] = (64, 32)
     """Hidden layer widths of the policy MLP."""
@@ -42,23 +47,11 @@ class PGConfig:
     """Iterations over which ε decays linearly."""
 
 
-def default_config(env: Env) -> PGConfig:
-    """The original per-environment defaults (ER column; IPD column elsewhere)."""
-    if env.incentive_obs:  # Escape Room
-        return PGConfig()
-    return PGConfig(
-        policy_hidden=(16, 8),
-        lr_policy=1e-3,
-        entropy_coef=0.1,
-        epsilon_start=1.0,
-        epsilon_end=0.01,
-        epsilon_decay_iters=5000,
-    )
-
-
 @struct.dataclass
 class PGState:
     policy: dict  # stacked policy parameters, leaves [N, ...]
+    attack_state: Any  # the attack's own state, else an empty dict
+    defense_state: tuple  # each defense's own state, in order
     key: jax.Array
     iteration: jax.Array  # int32 []
     env_steps: jax.Array  # int32 [], environment steps taken in training
@@ -143,26 +136,50 @@ def act_fn(module: nets.MLP, policy, epsilon: jax.Array):
     return act
 
 
-def init(key: jax.Array, env: Env, cfg: PGConfig, attack: Attack = NO_ATTACK) -> PGState:
+def init(
+    key: jax.Array,
+    env: Env,
+    cfg: PGConfig,
+    attack: Attack = NO_ATTACK,
+    defenses: Defenses = NO_DEFENSE,
+) -> PGState:
     module = nets.policy_module(cfg.policy_hidden, env.num_actions)
     init_key, key = jax.random.split(key)
     policy = nets.init_stacked(module, init_key, env.num_agents, env.obs_dim)
-    del attack  # no attack keeps state of its own against PG
+    own = jax.tree.map(lambda x: x[attack.adversary], policy)
     zero = jnp.zeros((), jnp.int32)
-    return PGState(policy=policy, key=key, iteration=zero, env_steps=zero)
+    return PGState(
+        policy=policy,
+        attack_state=attack.init_state(attack_key(key), env.num_agents, AgentParams(own, {})),
+        defense_state=defense_hooks.init_states(defenses, env.num_agents, policy),
+        key=key,
+        iteration=zero,
+        env_steps=zero,
+    )
 
 
 def update(
-    state: PGState, env: Env, cfg: PGConfig, attack: Attack = NO_ATTACK
+    state: PGState,
+    env: Env,
+    cfg: PGConfig,
+    attack: Attack = NO_ATTACK,
+    defenses: Defenses = NO_DEFENSE,
 ) -> tuple[PGState, dict[str, jax.Array]]:
     """One training iteration: play an episode, take one policy step per agent."""
     module = nets.policy_module(cfg.policy_hidden, env.num_actions)
     key, episode_key = jax.random.split(state.key)
-    epsilon = epsilon_at(
+    schedule_epsilon = epsilon_at(
         state.iteration, cfg.epsilon_start, cfg.epsilon_end, cfg.epsilon_decay_iters
     )
+    # 1. exploration (defense hook: acting_epsilon)
+    honest = defense_hooks.honest_agents(attack, env.num_agents)
+    epsilon = defense_hooks.acting_epsilon(
+        defenses, state.defense_state, EpsilonContext(schedule_epsilon, honest)
+    )
+    # 2. play an episode (attack hooks: act)
     act = act_fn(module, state.policy, epsilon)
-    traj = rollout(env, episode_key, act, attack=attack, env_step0=state.env_steps)
+    traj = rollout(env, episode_key, act, None, attack, state.env_steps, state.attack_state)
+    # 3. every agent's policy step on env reward (attack hook: policy_sign)
     policy = policy_step(
         module,
         state.policy,
@@ -172,16 +189,30 @@ def update(
         cfg.lr_policy,
         cfg.gamma,
         cfg.entropy_coef,
-        sign=attack.policy_sign(env.num_agents),
+        sign=attack.policy_sign(state.attack_state, env.num_agents),
     )
-    metrics = {"train/epsilon": epsilon, "train/success": episode_metrics(env, traj)["success"]}
+    success = episode_metrics(env, traj)["success"]
+    env_steps = state.env_steps + traj.valid.sum()
+    # 4. the attack's own state (attack hook: observe)
+    attack_state = attack.observe(
+        state.attack_state, attack_key(state.key), Outcome(success, state.iteration, env_steps)
+    )
+    metrics = {"train/epsilon": schedule_epsilon, "train/success": success}
     new_state = PGState(
         policy=policy,
+        attack_state=attack_state,
+        defense_state=state.defense_state,
         key=key,
         iteration=state.iteration + 1,
-        env_steps=state.env_steps + traj.valid.sum(),
+        env_steps=env_steps,
     )
     return new_state, metrics
+
+
+def acting(env: Env, cfg: PGConfig, state: PGState) -> Actor:
+    """The trained policy at ε = 0 (actions sampled)."""
+    module = nets.policy_module(cfg.policy_hidden, env.num_actions)
+    return Actor(act_fn(module, state.policy, jnp.float32(0.0)))
 
 
 def evaluate(
@@ -193,9 +224,15 @@ def evaluate(
     attack: Attack = NO_ATTACK,
 ):
     """Per-episode metrics [episodes, ...] of evaluation episodes (ε = 0, actions sampled)."""
-    module = nets.policy_module(cfg.policy_hidden, env.num_actions)
-    act = act_fn(module, state.policy, jnp.float32(0.0))
-    trajs = jax.vmap(lambda k: rollout(env, k, act, attack=attack, env_step0=state.env_steps))(
-        jax.random.split(key, episodes)
-    )
+    return evaluate_actor(key, env, acting(env, cfg, state), episodes, attack, state)
+
+
+def evaluate_actor(key, env: Env, actor: Actor, episodes: int, attack: Attack, state):
+    """Per-episode metrics of `episodes` episodes of `actor`, the attack acting as in
+    training (`state` carries its env_steps and attack_state)."""
+    trajs = jax.vmap(
+        lambda k: rollout(
+            env, k, actor.act, actor.give, attack, state.env_steps, state.attack_state
+        )
+    )(jax.random.split(key, episodes))
     return jax.vmap(lambda t: episode_metrics(env, t))(trajs)

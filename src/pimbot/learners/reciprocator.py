@@ -13,8 +13,9 @@ No reward moves between agents: a Reciprocator shapes others only by acting.
 
 Attacks act through the adversary's actions (bypass), its learning reward
 (self-centered: it learns from env reward only, i.e. it is a naive learner),
-the sign of its policy loss (reverse), or replace its policy update (ADMO on
-θ_a: `reciprocator_admo.py`). There is no incentive channel.
+the sign of its policy loss (reverse), or replace its policy update through
+the `AdversaryView` of the batch (ADMO on θ_a; the signal the adversary
+"receives" is the influence others exert on it). There is no incentive channel.
 """
 
 from __future__ import annotations
@@ -28,17 +29,26 @@ import optax
 from flax import struct
 
 from pimbot import nets
-from pimbot.attacks import admo
-from pimbot.attacks.strategies import Attack
+from pimbot.contracts.attack import (
+    NO_ATTACK,
+    AdversaryView,
+    AgentParams,
+    Attack,
+    Outcome,
+    attack_key,
+)
+from pimbot.contracts.defense import NO_DEFENSE, Defenses
+from pimbot.contracts.learner import Actor
 from pimbot.envs.core import Env
-from pimbot.learners import influence, reciprocator_admo
-from pimbot.learners.pg import act_fn
-from pimbot.rollout import NO_ATTACK, Trajectory, discounted_returns, episode_metrics, rollout
+from pimbot.learners import influence
+from pimbot.learners.pg import act_fn, evaluate_actor
+from pimbot.rollout import Trajectory, discounted_returns, episode_metrics, rollout
 
 
 @dataclasses.dataclass(frozen=True)
 class ReciprocatorConfig:
-    """Reciprocator hyperparameters (defaults: the original IPD config, except `num_envs`)."""
+    """Reciprocator hyperparameters (defaults: the original IPD config, except `num_envs`;
+    other environments declare w = 1 at their registration)."""
 
     reciprocal_weight: float = 5.0
     """w: weight of the reciprocal reward added to the env reward (0 = naive learner)."""
@@ -75,18 +85,6 @@ class ReciprocatorConfig:
     on the previous step, VoI(j→self, t−1), without accumulation or debit (spec: off)."""
 
 
-def default_config(env: Env) -> ReciprocatorConfig:
-    """IPD: w = 5 (the original); every other environment: w = 1."""
-    if getattr(env, "game", None) == "ipd":
-        return ReciprocatorConfig()
-    return ReciprocatorConfig(reciprocal_weight=1.0)
-
-
-def naive_config(env: Env) -> ReciprocatorConfig:
-    """The naive learner: the same PPO with reciprocal weight 0."""
-    return dataclasses.replace(default_config(env), reciprocal_weight=0.0)
-
-
 @struct.dataclass
 class ReplayBatches:
     """The last `voi_history` batches, flattened to samples (episode × step)."""
@@ -104,7 +102,8 @@ class ReciprocatorState:
     opt: optax.OptState  # Adam state over (policy, value)
     models: influence.InfluenceModels
     replay: ReplayBatches
-    attack_state: Any  # ADMO's state, else an empty dict
+    attack_state: Any  # the attack's own state (ADMO's), else an empty dict
+    defense_state: tuple  # no defense hook point: always empty
     key: jax.Array
     iteration: jax.Array  # int32 []
     env_steps: jax.Array  # int32 [], environment steps taken in training
@@ -122,7 +121,11 @@ def _masks(env: Env) -> jax.Array:
 
 
 def init(
-    key: jax.Array, env: Env, cfg: ReciprocatorConfig, attack: Attack = NO_ATTACK
+    key: jax.Array,
+    env: Env,
+    cfg: ReciprocatorConfig,
+    attack: Attack = NO_ATTACK,
+    defenses: Defenses = NO_DEFENSE,
 ) -> ReciprocatorState:
     policy_module, value_module = _modules(env, cfg)
     policy_key, value_key, model_key, key = jax.random.split(key, 4)
@@ -138,11 +141,9 @@ def init(
         future=jnp.zeros(shape + (n,), jnp.float32),
         valid=jnp.zeros(shape, bool),
     )
-    attack_state: Any = {}
-    if isinstance(attack, admo.ADMO):
-        attack_state = admo.init_state(
-            attack, jax.tree.map(lambda x: x[attack.adversary], policy), {}
-        )
+    own = jax.tree.map(lambda x: x[attack.adversary], policy)
+    attack_state = attack.init_state(attack_key(key), n, AgentParams(own, {}))
+    del defenses  # the Reciprocator has no defense hook point
     zero = jnp.zeros((), jnp.int32)
     return ReciprocatorState(
         policy=policy,
@@ -151,6 +152,7 @@ def init(
         models=influence.init_models(model_key, cfg.voi_hidden, n, in_dim, cfg.voi_lr),
         replay=replay,
         attack_state=attack_state,
+        defense_state=(),
         key=key,
         iteration=zero,
         env_steps=zero,
@@ -232,11 +234,11 @@ def ppo_update(env, cfg, policy, value, opt, trajs: Trajectory, returns, sign):
     return policy, value, opt
 
 
-def play_batch(env, cfg, policy, key, attack, env_steps) -> Trajectory:
+def play_batch(env, cfg, policy, key, attack, env_steps, attack_state) -> Trajectory:
     """`num_envs` episodes with the current policies (no ε): leaves [E, T, ...]."""
     act = act_fn(_modules(env, cfg)[0], policy, jnp.float32(0.0))
     keys = jax.random.split(key, cfg.num_envs)
-    return jax.vmap(lambda k: rollout(env, k, act, attack=attack, env_step0=env_steps))(keys)
+    return jax.vmap(lambda k: rollout(env, k, act, None, attack, env_steps, attack_state))(keys)
 
 
 def refit_models(env, cfg, state: ReciprocatorState, key, x, trajs: Trajectory):
@@ -273,14 +275,24 @@ def refit_models(env, cfg, state: ReciprocatorState, key, x, trajs: Trajectory):
 
 
 def update(
-    state: ReciprocatorState, env: Env, cfg: ReciprocatorConfig, attack: Attack = NO_ATTACK
+    state: ReciprocatorState,
+    env: Env,
+    cfg: ReciprocatorConfig,
+    attack: Attack = NO_ATTACK,
+    defenses: Defenses = NO_DEFENSE,
 ) -> tuple[ReciprocatorState, dict[str, jax.Array]]:
     """One training iteration: a batch of parallel episodes, a model refit, one PPO update."""
+    del defenses
     key, play_key, fit_key = jax.random.split(state.key, 3)
-    trajs = play_batch(env, cfg, state.policy, play_key, attack, state.env_steps)
+    # 1. play the batch (attack hook: act)
+    trajs = play_batch(
+        env, cfg, state.policy, play_key, attack, state.env_steps, state.attack_state
+    )
+    # 2. store it and refit the VoI models when due
     x = influence.model_inputs(trajs.obs, trajs.actions, env.num_actions)  # [E, T, in_dim]
     models, replay, model_loss = refit_models(env, cfg, state, fit_key, x, trajs)
 
+    # 3. VoI of every ordered pair, the balance and the reciprocal reward
     voi = influence.value_of_influence(models.params, cfg.voi_hidden, _masks(env), x, cfg.gamma)
     voi = voi * trajs.valid[..., None, None]  # [E, T, N, N]
     _, reciprocal = jax.vmap(
@@ -288,9 +300,12 @@ def update(
             v, cfg.gamma, cfg.original_one_step_grudge
         )
     )(voi)
-    rewards = attack.learning_rewards(trajs.env_rewards, cfg.reciprocal_weight * reciprocal)
+    # 4. PPO on env + w · reciprocal reward (attack hooks: learning_rewards, policy_sign)
+    rewards = attack.learning_rewards(
+        state.attack_state, trajs.env_rewards, cfg.reciprocal_weight * reciprocal
+    )
     returns = normalized_returns(rewards, trajs.valid, cfg.gamma)
-    sign = attack.policy_sign(env.num_agents)
+    sign = attack.policy_sign(state.attack_state, env.num_agents)
     policy, value, opt = ppo_update(
         env, cfg, state.policy, state.value, state.opt, trajs, returns, sign
     )
@@ -306,22 +321,20 @@ def update(
         "train/voi_received": jnp.sum(voi.sum(-2) * valid[..., None], axis=(0, 1)) / count,
         "train/model_loss": model_loss,
     }
+    # 5. a learning attack replaces the adversary's update (attack hook: adversary_step)
     attack_state = state.attack_state
-    if isinstance(attack, admo.ADMO):
-        policy_module = _modules(env, cfg)[0]
-        theta_a, attack_state, admo_metrics = reciprocator_admo.step(
-            attack,
-            attack_state,
-            policy_module,
-            policy,
-            trajs,
-            voi,
-            success=success,
-            gamma=cfg.gamma,
-            iteration=state.iteration,
+    if "adversary_step" in attack.hooks:
+        view = adversary_view(env, cfg, attack, policy, trajs, voi, success, state.iteration)
+        own, attack_state, attack_metrics = attack.adversary_step(
+            attack_state, attack_key(state.key), view
         )
-        policy = jax.tree.map(lambda p, own: p.at[attack.adversary].set(own), policy, theta_a)
-        metrics.update(admo_metrics)
+        policy = jax.tree.map(lambda p, o: p.at[attack.adversary].set(o), policy, own.policy)
+        metrics.update(attack_metrics)
+    env_steps = state.env_steps + trajs.valid.sum()
+    # 6. the attack's own state (attack hook: observe)
+    attack_state = attack.observe(
+        attack_state, attack_key(play_key), Outcome(success, state.iteration, env_steps)
+    )
 
     new_state = ReciprocatorState(
         policy=policy,
@@ -330,11 +343,46 @@ def update(
         models=models,
         replay=replay,
         attack_state=attack_state,
+        defense_state=state.defense_state,
         key=key,
         iteration=state.iteration + 1,
-        env_steps=state.env_steps + trajs.valid.sum(),
+        env_steps=env_steps,
     )
     return new_state, metrics
+
+
+def adversary_view(env, cfg, attack, policy, trajs, voi, success, iteration) -> AdversaryView:
+    """What a learning attack sees: the batch it was played on (ω = θ_a, r = env reward)."""
+    policy_module = _modules(env, cfg)[0]
+    a = attack.adversary
+
+    def log_probs(theta_a):  # invalid steps carry zero weight in the attack's losses
+        logits = policy_module.apply(theta_a, trajs.obs[:, :, a])
+        taken = jnp.take_along_axis(
+            jax.nn.log_softmax(logits), trajs.actions[:, :, a, None], axis=-1
+        )
+        return taken[..., 0]
+
+    return AdversaryView(
+        policy=policy,  # the adversary's row is unchanged by PPO: its policy sign is 0
+        incentive=None,
+        log_probs=log_probs,
+        env_rewards=trajs.env_rewards,
+        valid=trajs.valid,
+        emitted=None,
+        meta_pullback=None,
+        received=voi[..., a].sum(-1),  # the influence the others exert on a [E, T]
+        received_valid=trajs.valid,
+        emission_scales=(),
+        success=success,
+        gamma=cfg.gamma,
+        iteration=iteration,
+    )
+
+
+def acting(env: Env, cfg: ReciprocatorConfig, state: ReciprocatorState) -> Actor:
+    """The trained policies (softmax, actions sampled)."""
+    return Actor(act_fn(_modules(env, cfg)[0], state.policy, jnp.float32(0.0)))
 
 
 def evaluate(
@@ -346,8 +394,4 @@ def evaluate(
     attack: Attack = NO_ATTACK,
 ):
     """Per-episode metrics [episodes, ...] of evaluation episodes (actions sampled)."""
-    act = act_fn(_modules(env, cfg)[0], state.policy, jnp.float32(0.0))
-    trajs = jax.vmap(lambda k: rollout(env, k, act, attack=attack, env_step0=state.env_steps))(
-        jax.random.split(key, episodes)
-    )
-    return jax.vmap(lambda t: episode_metrics(env, t))(trajs)
+    return evaluate_actor(key, env, acting(env, cfg, state), episodes, attack, state)

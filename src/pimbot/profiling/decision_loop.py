@@ -20,10 +20,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from pimbot import attacks, envs
-from pimbot.learners import lio
-from pimbot.learners.pg import act_fn
-from pimbot.rollout import NO_ATTACK, decide
+from pimbot import attacks, envs, learners
+from pimbot.contracts.attack import NO_ATTACK
+from pimbot.rollout import decide
 
 CONTROLLERS = ("benign", "admo")
 
@@ -73,18 +72,19 @@ def make_attack(controller: str, num_agents: int):
     return attacks.make("admo", num_agents, adversary=0)
 
 
-def decision_fn(env, cfg: lio.LIOConfig, attack) -> Callable:
-    """decide(policy, incentive, key, obs [N, obs_dim], given [N, N], t) -> (actions, given).
+def decision_fn(env, learner, cfg, attack) -> Callable:
+    """decide(state, key, obs [N, obs_dim], given [N, N], t) -> (actions, given).
 
     One joint decision: each agent's policy head on its own observation (batch 1)
-    and each giver's incentive head, with the attack's act/emit hooks as in training.
+    and each giver's incentive head (the learner's `acting`), with the attack's
+    act/emit hooks as in training.
     """
-    policy_module, incentive_module = lio._modules(env, cfg)
 
-    def decision(policy, incentive, key, obs, given, t):
-        act = act_fn(policy_module, policy, jnp.float32(0.0))
-        give = lio.give_fn(incentive_module, incentive, env.num_actions, cfg.incentive_max)
-        _, actions, incentives, _, _ = decide(env, key, obs, given, act, give, attack, t)
+    def decision(state, key, obs, given, t):
+        actor = learner.acting(env, cfg, state)
+        _, actions, incentives, _, _ = decide(
+            env, key, obs, given, actor.act, actor.give, attack, t, state.attack_state
+        )
         return actions, given + incentives
 
     return jax.jit(decision)
@@ -99,17 +99,18 @@ def _timed(fn, *args):
 def run(config: ProfileConfig, on_phase: Callable[[str], None] | None = None) -> LoopResult:
     """Runs warm-up then `duration_s` of steady-state decisions; see the module docstring."""
     env = envs.make(config.env_id, **dict(config.env_params))
+    learner = learners.get("lio")
     cfg = dataclasses.replace(
-        lio.default_config(env),
+        learner.default_config(envs.spec(config.env_id)),
         policy_hidden=tuple(config.hidden),
         incentive_hidden=tuple(config.hidden),
     )
     attack = make_attack(config.controller, env.num_agents)
     key = jax.random.key(config.seed)
     init_key, env_key, act_key = jax.random.split(key, 3)
-    state = lio.init(init_key, env, cfg, attack)
-    decide = decision_fn(env, cfg, attack)
-    update = jax.jit(lambda s: lio.update(s, env, cfg, attack)[0])
+    state = learner.init(init_key, env, cfg, attack)
+    decide = decision_fn(env, learner, cfg, attack)
+    update = jax.jit(lambda s: learner.update(s, env, cfg, attack)[0])
     # The environment runs off the timed path (on the host CPU when there is one).
     cpu = jax.devices("cpu")[0]
     env_reset, env_step = jax.jit(env.reset), jax.jit(env.step)  # follow the committed key
@@ -123,16 +124,14 @@ def run(config: ProfileConfig, on_phase: Callable[[str], None] | None = None) ->
     zeros = jnp.zeros(env.num_agents, jnp.int32)
     _, compile_s["env_step"] = _timed(env_step, k, env_state, zeros)
     _, compile_s["decision"] = _timed(
-        decide, state.policy, state.incentive, act_key, jnp.asarray(np.asarray(obs)), given, t
+        decide, state, act_key, jnp.asarray(np.asarray(obs)), given, t
     )
     state, compile_s["update"] = _timed(update, state)
 
     def one_decision(obs, env_state, given, env_key, act_key, steps):
         act_key, k = jax.random.split(act_key)
         start = time.perf_counter()
-        actions, given = decide(
-            state.policy, state.incentive, k, jax.device_put(np.asarray(obs)), given, steps
-        )
+        actions, given = decide(state, k, jax.device_put(np.asarray(obs)), given, steps)
         actions = np.asarray(actions)  # committed: on the host
         latency = time.perf_counter() - start
         done = False

@@ -1,8 +1,8 @@
 """Policies trained in the abstract Escape Room, evaluated in physics next to the abstract env.
 
-`load_run` restores a run directory's final checkpoint (config.json +
-checkpoint/, read through `experiment.store` and the run's own `resolve`d
-config). `TrainedPolicy` plays one seed's policy in physics through the same
+`load_run` restores a run directory's final checkpoint through
+`experiment.runs.load_run` (any learner: the policy comes from its `acting`).
+`TrainedPolicy` plays one seed's policy in physics through the same
 joint-decision function training uses (`rollout.decide`: the observation with
 the incentives given so far, the attack's `act` hook — bypass idles the
 adversary — and its incentive emission), with ε = 0 and sampled actions, as
@@ -18,100 +18,46 @@ import time
 from pathlib import Path
 from typing import Any
 
-import flax.serialization
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from pimbot import nets
 from pimbot.analysis.metrics import bootstrap_ci
 from pimbot.envs.core import InvalidParameter
-from pimbot.experiment import store
-from pimbot.experiment.config import ResolvedRun, RunConfig, coerce_like, resolve
-from pimbot.learners import lio
-from pimbot.learners.pg import act_fn
+from pimbot.experiment import runs, store
+from pimbot.experiment.config import ResolvedRun, coerce_like
+from pimbot.experiment.runs import LoadedRun
 from pimbot.robot.episode import EpisodeResult, PhysicsConfig, run_episode
 from pimbot.rollout import decide
 
-SUPPORTED_LEARNERS = ("lio", "pg")
-
-
-@dataclasses.dataclass(frozen=True)
-class LoadedRun:
-    """A finished (or checkpointed) run: its resolved config and per-seed learner states."""
-
-    run_dir: Path
-    resolved: ResolvedRun
-    states: Any  # learner state, leaves [S_padded, ...]
-    seeds: tuple[int, ...]
-    iteration: int
-
-    def seed_state(self, index: int):
-        return jax.tree.map(lambda x: x[index], self.states)
-
-
-def _pairs(value) -> tuple[tuple[str, Any], ...]:
-    return tuple((str(k), tuple(v) if isinstance(v, list) else v) for k, v in value)
-
-
-def _merge(template: Any, saved: Any) -> Any:
-    if isinstance(template, dict) and isinstance(saved, dict):
-        return {k: _merge(v, saved[k]) if k in saved else v for k, v in template.items()}
-    return saved
-
 
 def load_run(run_dir: str | Path) -> LoadedRun:
-    """Restores the checkpoint of `run_dir`; fails naming what is missing or unsupported."""
-    run_dir = Path(run_dir)
-    if not (run_dir / store.CONFIG).exists():
-        raise InvalidParameter(f"run_dir: {run_dir} has no {store.CONFIG}; not a pimbot run")
-    config = store.read_json(run_dir / store.CONFIG)
-    saved = dict(config["run_config"])
-    for name in ("env_params", "hparams", "attack_params"):
-        saved[name] = _pairs(saved.get(name) or [])
-    resolved = resolve(RunConfig(**saved))
-    if resolved.run.env_id != "escape_room-v0":
+    """Restores an Escape Room run for the robots; fails naming what is unsupported."""
+    loaded = runs.load_run(run_dir)
+    if loaded.resolved.run.env_id != "escape_room-v0":
         raise InvalidParameter(
-            f"run_dir: {run_dir} trained on {resolved.run.env_id}; the robot case study "
+            f"run_dir: {run_dir} trained on {loaded.resolved.run.env_id}; the robot case study "
             "plays escape_room-v0 runs only"
         )
-    if resolved.run.learner not in SUPPORTED_LEARNERS:
-        raise InvalidParameter(
-            f"run_dir: {run_dir} trained learner {resolved.run.learner}; the robot evaluation "
-            f"plays {', '.join(SUPPORTED_LEARNERS)} policies"
-        )
-    checkpoint = store.load_checkpoint(run_dir)
-    if checkpoint is None:
-        raise InvalidParameter(f"run_dir: {run_dir} has no checkpoint/ to evaluate")
-    state_bytes, iteration = checkpoint
-    env, learner, cfg = resolved.env, resolved.learner, resolved.learner_config
-    template = learner.init(jax.random.PRNGKey(0), env, cfg, resolved.attack)
-    # Leaves are restored with their saved leading (seed) axis; state fields added to the
-    # learner after the run was trained keep the template's (unbatched, unused) values.
-    target = jax.tree.map(lambda x: x[None], template)
-    saved_dict = flax.serialization.msgpack_restore(state_bytes)
-    merged = _merge(flax.serialization.to_state_dict(target), saved_dict)
-    states = flax.serialization.from_state_dict(target, merged)
-    seeds = tuple(range(resolved.run.first_seed, resolved.run.first_seed + resolved.run.seeds))
-    return LoadedRun(run_dir, resolved, states, seeds, iteration)
+    return loaded
 
 
-def decision_function(resolved: ResolvedRun):
+def decision_function(loaded: LoadedRun):
     """Jitted decision(state, key, obs [N, D], given [N, N], t) -> (actions [N], given)."""
-    env, cfg, attack = resolved.env, resolved.learner_config, resolved.attack
-    policy_module = nets.policy_module(cfg.policy_hidden, env.num_actions)
-    has_incentives = resolved.learner.has_incentives
+    env, attack = loaded.resolved.env, loaded.resolved.attack
 
     def decision(state, key, obs, given, t):
-        act = act_fn(policy_module, state.policy, jnp.float32(0.0))
-        give = None
-        if has_incentives:
-            incentive_module = nets.incentive_module(cfg.incentive_hidden, env.num_agents)
-            give = lio.give_fn(
-                incentive_module, state.incentive, env.num_actions, cfg.incentive_max
-            )
+        actor = loaded.actor(state)
         _, actions, incentives, _, _ = decide(
-            env, key, obs, given, act, give, attack, state.env_steps + t
+            env,
+            key,
+            obs,
+            given,
+            actor.act,
+            actor.give,
+            attack,
+            state.env_steps + t,
+            state.attack_state,
         )
         return actions, given + incentives
 
@@ -183,7 +129,7 @@ def physics_episodes(
     decision=None,
 ) -> list[EpisodeResult]:
     """`episodes` physics episodes of one seed's policy (the first recorded if asked)."""
-    decision = decision or decision_function(loaded.resolved)
+    decision = decision or decision_function(loaded)
     seed = loaded.seeds[seed_index]
     policy = TrainedPolicy(
         decision,
@@ -285,7 +231,7 @@ def evaluate_run(
     cfg = physics_config(loaded.resolved, **(cfg_overrides or {}))
     start = time.perf_counter()
     abstract = abstract_success(loaded, episodes)
-    decision = decision_function(loaded.resolved)
+    decision = decision_function(loaded)
     physics, arrived, steps, physics_steps = [], [], [], 0
     recorded = None
     for s, seed in enumerate(loaded.seeds):

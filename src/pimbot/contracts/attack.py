@@ -1,0 +1,207 @@
+"""The attack contract: what a manipulation of one agent (the adversary) may change.
+
+An attack is a frozen pytree config: its numeric parameters are leaves (traced
+data, so runs that differ only in numbers share one compiled program), its
+structural ones (`adversary`, modes) static fields. A learner consults it at
+named hook points; an attack overrides only those of its lever and lists them
+in `hooks`, so a learner that does not consult a hook refuses it by name:
+
+* `act`              — the joint action actually played (bypass, ε-random);
+* `emit`             — the incentives actually emitted, as a scale [N giver,
+                       N recipient] of the learned incentives plus an offset;
+* `learning_rewards` — the reward of every agent's actual policy step;
+* `policy_sign`      — +1 ascends, −1 descends, 0 freezes an agent's policy step;
+* `adversary_step`   — replaces the adversary's update (a learning attack),
+                       given an `AdversaryView` the learner builds;
+* `observe`          — updates the attack's per-seed state once per iteration.
+
+Every hook gets the attack's per-seed state (`init_state`, kept in the learner
+state) and, where randomness may be needed, its own PRNG key, derived from the
+learner's keys without consuming them (clean streams stay bit-identical).
+Everything the other agents *model* of the adversary stays the ordinary
+learner: only the adversary's actual behaviour changes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any, ClassVar
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from pimbot.contracts.registry import Registry
+from pimbot.envs.core import InvalidParameter
+
+HOOKS = ("act", "emit", "learning_rewards", "policy_sign", "adversary_step", "observe")
+"""Every attack hook point, in the order a learner's iteration meets them."""
+
+ATTACK_STREAM = 0x5A7
+"""`fold_in` data of the attack's keys: derived from a learner key without splitting it."""
+
+
+def attack_key(key: jax.Array) -> jax.Array:
+    """The attack's key beside a learner key (`key` itself is left to its own use)."""
+    return jax.random.fold_in(key, ATTACK_STREAM)
+
+
+@struct.dataclass
+class AgentParams:
+    """One agent's parameters ω: its policy θ and its incentive function η ({} if none)."""
+
+    policy: Any
+    incentive: Any
+
+
+@dataclasses.dataclass(frozen=True)
+class AdversaryView:
+    """What a learner shows a learning attack's `adversary_step`, once per iteration.
+
+    Arrays have leading batch axes B (LIO: none, one episode; Reciprocator: [E]
+    episodes) before time T. The adversary's row of `policy` (and `incentive`) is
+    its current ω: the learner has not moved it (its policy sign is 0).
+    """
+
+    policy: Any
+    """Stacked policy parameters of every agent, leaves [N, ...]."""
+    incentive: Any
+    """Stacked incentive parameters [N, ...]; None without an incentive channel."""
+    log_probs: Callable[[Any], jax.Array]
+    """θ_a -> [B..., T] log-probability of the adversary's actions on the judged batch,
+    as it played them, zero on invalid steps."""
+    env_rewards: jax.Array
+    """[B..., T, N] env rewards of the judged batch (zero on invalid steps)."""
+    valid: jax.Array
+    """bool [B..., T]."""
+    emitted: Callable[[Any], jax.Array] | None
+    """η (stacked) -> [B..., T, N, N] incentives emitted on the judged batch, as emitted
+    (differentiable in η); None without an incentive channel."""
+    meta_pullback: Callable[[jax.Array], Any] | None
+    """Cotangent on the recipients' log-probabilities [T, N] on the judged batch -> its
+    gradient w.r.t. η (stacked) through the recipients' updates from the incentives the
+    adversary gave (LIO's second-order path); None where the learner has none."""
+    received: jax.Array
+    """[B'..., T] the signal the adversary received per step (incentives, or the
+    influence others exert on it), on the batch it learnt from."""
+    received_valid: jax.Array
+    """bool [B'..., T] of `received`."""
+    emission_scales: tuple[tuple[jax.Array, jax.Array], ...]
+    """(scale [T, N, N], valid [T]) of every episode played this iteration (with an
+    incentive channel), for budget accounting."""
+    success: jax.Array
+    """[] team success of the iteration."""
+    gamma: float
+    iteration: jax.Array
+
+
+@dataclasses.dataclass(frozen=True)
+class Outcome:
+    """What `observe` sees after each iteration."""
+
+    success: jax.Array
+    """[] team success of the episodes just played."""
+    iteration: jax.Array
+    """int32 [] the iteration just trained."""
+    env_steps: jax.Array
+    """int32 [] environment steps taken in training so far."""
+
+
+@struct.dataclass
+class Attack:
+    """No manipulation; the base of every attack (every hook is the identity)."""
+
+    adversary: int = struct.field(pytree_node=False, default=0)
+    """Index of the manipulated agent."""
+
+    name: ClassVar[str] = "none"
+    lever: ClassVar[str] = "none"
+    hooks: ClassVar[tuple[str, ...]] = ()
+    """The hook points this attack changes; a learner must consult all of them."""
+
+    def validate(self, num_agents: int) -> None:
+        """Raises InvalidParameter naming the bad field (override and call super)."""
+        if isinstance(self.adversary, bool) or not isinstance(self.adversary, int):
+            raise InvalidParameter(f"adversary: must be an integer, got {self.adversary!r}")
+        if not 0 <= self.adversary < num_agents:
+            raise InvalidParameter(
+                f"adversary: must be an agent index in [0, {num_agents - 1}], got {self.adversary}"
+            )
+
+    @property
+    def active(self) -> bool:
+        """False for the clean (no-attack) config."""
+        return self.name != "none"
+
+    def is_adversary(self, num_agents: int) -> jax.Array:
+        """bool [N], True at the adversary."""
+        return jnp.arange(num_agents) == self.adversary
+
+    def init_state(self, key: jax.Array, num_agents: int, adversary: AgentParams) -> Any:
+        """The attack's per-seed state; `adversary` is ω at initialisation."""
+        del key, num_agents, adversary
+        return {}
+
+    def act(
+        self, state: Any, key: jax.Array, actions: jax.Array, idle_action: int, env_step
+    ) -> jax.Array:
+        """The joint action int32 [N] played; `env_step`: environment steps so far."""
+        del state, key, idle_action, env_step
+        return actions
+
+    def emit(
+        self, state: Any, key: jax.Array, given_so_far: jax.Array
+    ) -> tuple[jax.Array, jax.Array]:
+        """(scale [N, N], offset [N, N]): emitted[i, j] = scale[i, j] · learned[i, j] + offset.
+
+        Args:
+            given_so_far: [N, N] incentives emitted earlier in this episode.
+        """
+        del state, key
+        n = given_so_far.shape[0]
+        return jnp.ones((n, n)), jnp.zeros((n, n))
+
+    def learning_rewards(self, state: Any, env_rewards: jax.Array, received: jax.Array):
+        """[..., T, N] rewards of every agent's actual policy step (env + received)."""
+        del state
+        return env_rewards + received
+
+    def policy_sign(self, state: Any, num_agents: int) -> jax.Array:
+        """[N] sign of every agent's actual policy step."""
+        del state
+        return jnp.ones((num_agents,))
+
+    def adversary_step(
+        self, state: Any, key: jax.Array, view: AdversaryView
+    ) -> tuple[AgentParams, Any, dict[str, jax.Array]]:
+        """The adversary's new ω, the new state and `attack/`-style metrics.
+
+        Only called for attacks listing "adversary_step" in `hooks`.
+        """
+        raise NotImplementedError(f"attack {self.name} has no adversary step")
+
+    def observe(self, state: Any, key: jax.Array, outcome: Outcome) -> Any:
+        """The state after an iteration (identity by default)."""
+        del key, outcome
+        return state
+
+
+NO_ATTACK = Attack()
+
+ATTACKS: Registry[type[Attack]] = Registry("attack", "attack")
+
+
+def register(cls: type[Attack], *, replace: bool = False) -> type[Attack]:
+    """Registers an attack class under `cls.name` (usable as a class decorator)."""
+    if not (isinstance(cls, type) and issubclass(cls, Attack)):
+        raise TypeError(f"attacks must subclass pimbot.contracts.attack.Attack, got {cls!r}")
+    unknown = set(cls.hooks) - set(HOOKS)
+    if unknown:
+        raise ValueError(f"attack {cls.name}: unknown hooks {sorted(unknown)}; known: {HOOKS}")
+    return ATTACKS.register(cls.name, cls, replace=replace)
+
+
+def parameters(cls: type[Attack]) -> dict[str, Any]:
+    """The attack's parameters and their defaults."""
+    return {f.name: f.default for f in dataclasses.fields(cls) if f.init}
