@@ -6,12 +6,12 @@ numbers come from `pimbot train` (see README and docs/results).
 
 import numpy as np
 
-from pimbot.experiment import runner
+from pimbot.experiment import runner, summary
 from pimbot.experiment.config import RunConfig
 
 
 def _final(run_dir, column):
-    return np.array(runner.summarize(run_dir)["final"][column]["per_seed"])
+    return np.array(summary.summarize(run_dir)["final"][column]["per_seed"])
 
 
 def test_lio_solves_escape_room_2_1(tmp_path):

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from pimbot.experiment import store
-from pimbot.experiment.runner import summarize
+from pimbot.experiment.summary import summarize
 
 CLEAN = "clean"
 NO_DEFENSE = "none"

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from pimbot.analysis.metrics import bootstrap_ci, diff_ci
+from pimbot.experiment.summary import bootstrap_ci, diff_ci
 
 MISSING = "–"
 
@@ -138,7 +138,7 @@ def summary_table(run_dirs: list[Path]) -> str:
     """One row per run: final success, return ratio, team return, convergence, speed."""
     from pimbot.analysis.plots import run_label
     from pimbot.experiment import store
-    from pimbot.experiment.runner import summarize
+    from pimbot.experiment.summary import summarize
 
     rows = []
     for run_dir in run_dirs:

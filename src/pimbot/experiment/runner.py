@@ -23,11 +23,11 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 import pimbot
-from pimbot.analysis import metrics as curve_metrics
 from pimbot.envs.core import InvalidParameter
 from pimbot.experiment import store
 from pimbot.experiment.config import ResolvedRun, RunConfig, env_parameters, resolve
 from pimbot.experiment.progress import Progress
+from pimbot.experiment.summary import summarize
 
 TARGET_CHUNK_ITERATIONS = 2000
 
@@ -278,66 +278,3 @@ def train(
     summary["wall_s_this_session"] = time.perf_counter() - t0
     store.write_json(run_dir / store.SUMMARY, summary)
     return TrainResult(run_dir, summary, False)
-
-
-def summarize(run_dir: str | Path) -> dict[str, Any]:
-    """Final metrics (mean of the last evaluation points, 95 % CI) and convergence, from files."""
-    run_dir = Path(run_dir)
-    rows = store.read_metrics(run_dir)
-    config = store.read_json(run_dir / store.CONFIG)
-    seeds = sorted({int(r["seed"]) for r in rows})
-    by_seed = {s: [r for r in rows if int(r["seed"]) == s] for s in seeds}
-    columns = [c for c in rows[0] if c.startswith("eval/")] if rows else []
-    final: dict[str, Any] = {}
-    for column in columns:
-        per_seed = [
-            curve_metrics.final_value(np.array([float(r[column]) for r in by_seed[s]]))
-            for s in seeds
-        ]
-        lo, hi = curve_metrics.bootstrap_ci(np.array(per_seed))
-        final[column] = {"mean": float(np.mean(per_seed)), "ci95": [lo, hi], "per_seed": per_seed}
-    curve = "eval/return_ratio" if "eval/return_ratio" in columns else "eval/success"
-    converged, first = [], []
-    for s in seeds:
-        its = np.array([int(r["iteration"]) for r in by_seed[s]])
-        values = np.array([float(r[curve]) for r in by_seed[s]])
-        c, f = curve_metrics.convergence_point(its, values)
-        converged.append(c)
-        first.append(f)
-    reached = [c for c in converged if c is not None]
-    # Seeds that never converge count as +inf: a median or quartile that falls on
-    # one of them is "never" (None), not the largest finite value.
-    ranked = np.array([c if c is not None else np.inf for c in converged], dtype=float)
-
-    def finite_or_none(value: float) -> float | None:
-        return float(value) if np.isfinite(value) else None
-
-    with np.errstate(invalid="ignore"):
-        median = finite_or_none(np.median(ranked)) if ranked.size else None
-        quartiles = np.quantile(ranked, [0.25, 0.75]) if ranked.size else [np.inf, np.inf]
-    perf = [float(r["perf/iters_per_s"]) for r in rows if "perf/iters_per_s" in r]
-    return {
-        "finished": True,
-        "env_id": config["env"]["id"],
-        "learner": config["identity"]["learner"],
-        "seeds": seeds,
-        "iterations": config["identity"]["iterations"],
-        "final_window_evals": curve_metrics.FINAL_WINDOW,
-        "final": final,
-        "convergence": {
-            "curve": curve,
-            "threshold": curve_metrics.CONVERGENCE_THRESHOLD,
-            "smoothing_window_evals": curve_metrics.SMOOTHING_WINDOW,
-            "per_seed": converged,
-            "first_crossing_per_seed": first,
-            "converged_seeds": len(reached),
-            "median": median,
-            "iqr": [finite_or_none(q) for q in quartiles],
-            "first_crossing_median": finite_or_none(
-                np.median([f if f is not None else np.inf for f in first])
-            )
-            if first
-            else None,
-        },
-        "iters_per_s_mean": float(np.mean(perf)) if perf else None,
-    }

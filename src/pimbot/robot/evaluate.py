@@ -22,11 +22,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from pimbot.analysis.metrics import bootstrap_ci
 from pimbot.envs.core import InvalidParameter
 from pimbot.experiment import runs, store
 from pimbot.experiment.config import ResolvedRun, coerce_like
 from pimbot.experiment.runs import LoadedRun
+from pimbot.experiment.summary import bootstrap_ci
 from pimbot.robot.episode import EpisodeResult, PhysicsConfig, run_episode
 from pimbot.rollout import decide
 

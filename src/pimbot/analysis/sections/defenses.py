@@ -15,10 +15,10 @@ import numpy as np
 
 from pimbot.analysis import plots
 from pimbot.analysis.document import Context, Section
-from pimbot.analysis.metrics import bootstrap_ci, convergence_point, final_value
 from pimbot.analysis.runs import CLEAN, NO_DEFENSE, RunRecord, RunTable, condition_key, natural_key
 from pimbot.analysis.tables import Table, estimate
 from pimbot.experiment import presets, store
+from pimbot.experiment.summary import bootstrap_ci, convergence_point, final_value
 
 GROUP = "defenses"
 TIMING = "iteration_time.json"

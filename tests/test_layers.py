@@ -1,0 +1,133 @@
+"""The package's layers import downward only, and every module imports on its own.
+
+Layers, lowest first (a module may import its own layer and those below):
+  0 envs, nets, jax_setup          the pure environments and networks
+  1 rollout, contracts             the episode and the hook protocols plugins implement
+  2 attacks, defenses, learners    the built-in plugins (registered like a user's)
+  3 experiment core, plugins       configs, runs, training, summaries, plugin loading
+  4 profiling, robot               applications of trained runs
+  5 suites                         job kinds, grids, the paper preset, the sweep engine
+  6 analysis                       reports from run directories
+  7 command line                   cli and the command modules of the packages
+"""
+
+from __future__ import annotations
+
+import ast
+import os
+import sys
+from pathlib import Path
+
+import pytest
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+PACKAGE = SRC / "pimbot"
+
+LAYERS = [  # (module prefix, layer); the longest matching prefix wins
+    ("pimbot", 0),
+    ("pimbot.envs", 0),
+    ("pimbot.nets", 0),
+    ("pimbot.jax_setup", 0),
+    ("pimbot.rollout", 1),
+    ("pimbot.contracts", 1),
+    ("pimbot.attacks", 2),
+    ("pimbot.defenses", 2),
+    ("pimbot.learners", 2),
+    ("pimbot.experiment", 3),
+    ("pimbot.plugins", 3),
+    ("pimbot.profiling", 4),
+    ("pimbot.robot", 4),
+    ("pimbot.experiment.jobs", 5),
+    ("pimbot.experiment.grid", 5),
+    ("pimbot.experiment.presets", 5),
+    ("pimbot.experiment.sweep", 5),
+    ("pimbot.analysis", 6),
+    ("pimbot.cli", 7),
+    ("pimbot.defenses.cli", 7),
+    ("pimbot.robot.cli", 7),
+]
+
+
+def layer(module: str) -> int:
+    matches = [(p, n) for p, n in LAYERS if module == p or module.startswith(p + ".")]
+    return max(matches, key=lambda m: len(m[0]))[1]
+
+
+def modules() -> list[str]:
+    names = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        parts = path.relative_to(SRC).with_suffix("").parts
+        names.append(".".join(parts[:-1] if parts[-1] == "__init__" else parts))
+    return names
+
+
+def _is_module(name: str) -> bool:
+    path = SRC.joinpath(*name.split("."))
+    return path.is_dir() or path.with_suffix(".py").exists()
+
+
+def imported(module: str) -> set[str]:
+    """Every pimbot module `module` imports, at the top or inside functions."""
+    parts = module.split(".")
+    path = SRC.joinpath(*parts)
+    path = path / "__init__.py" if path.is_dir() else path.with_suffix(".py")
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("pimbot"):
+            found.add(node.module)
+            found |= {f"{node.module}.{a.name}" for a in node.names}
+        elif isinstance(node, ast.Import):
+            found |= {a.name for a in node.names if a.name.startswith("pimbot")}
+    return {name for name in found if _is_module(name)}
+
+
+def test_every_module_has_a_layer_and_no_import_goes_up():
+    upward = [
+        f"{module} (layer {layer(module)}) imports {dep} (layer {layer(dep)})"
+        for module in modules()
+        for dep in sorted(imported(module))
+        if layer(dep) > layer(module)
+    ]
+    assert not upward, "\n".join(upward)
+
+
+def test_contracts_import_no_plugin():
+    for module in modules():
+        if module.startswith("pimbot.contracts"):
+            plugins = [d for d in imported(module) if layer(d) >= 2]
+            assert not plugins, f"{module} imports {plugins}"
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="needs fork")
+def test_every_module_imports_first_in_a_fresh_interpreter():
+    """Each module is the first pimbot module a fresh process imports (an import cycle
+    that only bites in some import order fails here). One parent process pre-imports
+    the third-party libraries; each module is imported in a forked child of it."""
+    import subprocess
+
+    script = f"""
+import os, sys, importlib, traceback
+sys.path.insert(0, {str(SRC)!r})
+import jax, flax, optax, numpy, matplotlib  # noqa: F401  (third-party only)
+assert not [m for m in sys.modules if m == "pimbot" or m.startswith("pimbot.")]
+failed = []
+for name in {modules()!r}:
+    pid = os.fork()
+    if pid == 0:
+        try:
+            importlib.import_module(name)
+        except BaseException:
+            traceback.print_exc()
+            os._exit(1)
+        os._exit(0)
+    _, status = os.waitpid(pid, 0)
+    if status != 0:
+        failed.append(name)
+print("FAILED:", failed)
+sys.exit(1 if failed else 0)
+"""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    result = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=600
+    )
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
