@@ -28,7 +28,12 @@ jax_setup.use_all_cpu_cores()
 import jax  # noqa: E402
 
 from pimbot.experiment.config import RunConfig, resolve  # noqa: E402
-from pimbot.experiment.runner import make_chunk_fn, seed_keys, seed_sharding  # noqa: E402
+from pimbot.experiment.runner import (  # noqa: E402
+    init_states,
+    make_chunk_fn,
+    seed_keys,
+    seed_sharding,
+)
 
 CONFIGS = {
     "ipd": ("ipd-v0", ()),
@@ -52,21 +57,22 @@ def measure(name: str, seeds: int, num_envs: int, updates: int, repeats: int) ->
         eval_period=updates,
     )
     resolved = resolve(run)
-    env, learner, cfg = resolved.env, resolved.learner, resolved.learner_config
+    env = resolved.env
     sharding, padded = seed_sharding(seeds)
     keys = seed_keys(0, padded)
-    states = jax.jit(jax.vmap(lambda k: learner.init(jax.random.fold_in(k, 0), env, cfg)))(keys)
+    states = init_states(resolved, jax.vmap(lambda k: jax.random.fold_in(k, 0))(keys))
+    hooks = (resolved.attack, resolved.defenses)
     roots = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
     if sharding is not None:
         states, roots = jax.device_put(states, sharding), jax.device_put(roots, sharding)
     t0 = time.perf_counter()
-    chunk = make_chunk_fn(resolved, 1).lower(states, roots).compile()
+    chunk = make_chunk_fn(resolved, 1).lower(states, roots, *hooks).compile()
     compile_s = time.perf_counter() - t0
-    states, _ = jax.block_until_ready(chunk(states, roots))  # warm-up
+    states, _ = jax.block_until_ready(chunk(states, roots, *hooks))  # warm-up
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        states, metrics = jax.block_until_ready(chunk(states, roots))
+        states, metrics = jax.block_until_ready(chunk(states, roots, *hooks))
         times.append(time.perf_counter() - t0)
     call_s = statistics.median(times)
     seed_updates = updates * seeds / call_s

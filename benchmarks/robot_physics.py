@@ -66,7 +66,7 @@ def ten_episode_eval(run_dir: Path) -> dict:
 
     loaded = evaluate.load_run(run_dir)
     cfg = evaluate.physics_config(loaded.resolved)
-    decision = evaluate.decision_function(loaded.resolved)
+    decision = evaluate.decision_function(loaded)
     evaluate.physics_episodes(loaded, 0, 1, cfg, decision=decision)  # compile
     start = time.perf_counter()
     results = evaluate.physics_episodes(loaded, 0, 10, cfg, decision=decision)

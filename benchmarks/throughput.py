@@ -176,9 +176,8 @@ def run_case(config: str, num_seeds: int, args: argparse.Namespace) -> dict[str,
     keys = runner.seed_keys(run.first_seed, padded)
     init_keys = jax.vmap(lambda k: jax.random.fold_in(k, 0))(keys)
     eval_roots = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
-    env, learner, cfg = resolved.env, resolved.learner, resolved.learner_config
-    attack = resolved.attack
-    states = jax.jit(jax.vmap(lambda k: learner.init(k, env, cfg, attack)))(init_keys)
+    states = runner.init_states(resolved, init_keys)
+    attack, defenses = resolved.attack, resolved.defenses
     if sharding is not None:
         states = jax.device_put(states, sharding)
         eval_roots = jax.device_put(eval_roots, sharding)
@@ -186,7 +185,8 @@ def run_case(config: str, num_seeds: int, args: argparse.Namespace) -> dict[str,
     state_bytes = sum(leaf.nbytes for leaf in jax.tree.leaves(states))
 
     t0 = time.perf_counter()
-    chunk_fn = runner.make_chunk_fn(resolved, num_periods).lower(states, eval_roots).compile()
+    chunk_fn = runner.make_chunk_fn(resolved, num_periods)
+    chunk_fn = chunk_fn.lower(states, eval_roots, attack, defenses).compile()
     compile_s = time.perf_counter() - t0
     rss_compiled = peak_rss_bytes()
     try:
@@ -195,12 +195,12 @@ def run_case(config: str, num_seeds: int, args: argparse.Namespace) -> dict[str,
     except Exception:  # not every backend implements it
         xla_temp = None
 
-    states, chunk_metrics = chunk_fn(states, eval_roots)  # warm-up
+    states, chunk_metrics = chunk_fn(states, eval_roots, attack, defenses)  # warm-up
     jax.block_until_ready((states, chunk_metrics))
     call_s = []
     for _ in range(args.repeats):
         t = time.perf_counter()
-        states, chunk_metrics = chunk_fn(states, eval_roots)
+        states, chunk_metrics = chunk_fn(states, eval_roots, attack, defenses)
         jax.block_until_ready((states, chunk_metrics))
         call_s.append(time.perf_counter() - t)
 
