@@ -108,3 +108,45 @@ def test_train_then_rerun_says_finished(tmp_path, capsys):
     assert "success" in capsys.readouterr().out
     assert cli.main(argv) == 0
     assert "already finished" in capsys.readouterr().out
+
+
+def _command_paths(parser, prefix=()):
+    """Every command and subcommand of the parser, e.g. ("robot", "eval")."""
+    for name, sub in parser.subcommands.items():
+        yield (*prefix, name)
+        yield from _command_paths(sub, (*prefix, name))
+
+
+COMMANDS = list(_command_paths(cli.build_parser()))
+
+
+def test_every_command_is_found():
+    names = {path[0] for path in COMMANDS}
+    assert {"train", "sweep", "reproduce", "report", "envs", "plot", "robot"} <= names
+    assert ("robot", "eval") in COMMANDS and ("audit", "verify") in COMMANDS
+
+
+@pytest.mark.parametrize("path", [(), *COMMANDS], ids=lambda p: " ".join(p) or "pimbot")
+def test_help_of_every_command_has_no_traceback(path, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main([*path, "--help"])
+    assert exit_info.value.code == 0
+    captured = capsys.readouterr()
+    assert captured.out.startswith("usage: pimbot") and not captured.err
+    assert "--plugin MODULE" in captured.out  # every command takes --plugin
+
+
+def test_bare_pimbot_prints_the_commands(capsys):
+    assert cli.main([]) == 0
+    text = capsys.readouterr().out
+    assert text.startswith("usage: pimbot")
+    assert all(name in text for name in ("train", "sweep", "reproduce", "envs"))
+
+
+def test_version(capsys):
+    import pimbot
+
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["--version"])
+    assert exit_info.value.code == 0
+    assert capsys.readouterr().out.strip() == f"pimbot {pimbot.__version__}"

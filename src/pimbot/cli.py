@@ -1,12 +1,16 @@
 """The `pimbot` command line.
 
     pimbot train ENV_ID [name=value ...] --learner lio --seeds 10 --iterations 50000 --out DIR
+    pimbot sweep GRID.toml --out DIR [--backend local|ray] [--workers K] [--list]
+    pimbot reproduce [--quick] --out DIR
+    pimbot report DIR
     pimbot profile --env ENV_ID [name=value ...] --controller benign|admo --duration S --out DIR
-    pimbot envs
-    pimbot learners
+    pimbot envs | learners | attacks | defenses
 
-Bad input prints one line naming the field and the allowed values and exits
-with status 2, before anything is written.
+Every command takes `--plugin MODULE` (repeatable; a module name or a .py
+file) to load plugins that register more envs, learners, attacks or
+defenses (see `pimbot.plugins`). Bad input prints one line naming the field
+and the allowed values and exits with status 2, before anything is written.
 """
 
 from __future__ import annotations
@@ -14,9 +18,13 @@ from __future__ import annotations
 import argparse
 import sys
 
-from pimbot import jax_setup
+import pimbot
+from pimbot import jax_setup, plugins
 from pimbot.defenses import cli as defense_cli
 from pimbot.robot import cli as robot_cli
+
+PLUGIN_DEST = "plugins:"
+"""Prefix of the namespace attributes holding each (sub)parser's --plugin values."""
 
 
 class UsageError(Exception):
@@ -24,8 +32,33 @@ class UsageError(Exception):
 
 
 class _Parser(argparse.ArgumentParser):
+    """Every parser and subparser of `pimbot`: one-line errors and a `--plugin` option."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.subcommands: dict[str, argparse.ArgumentParser] = {}
+        # One dest per parser: a subparser's values would overwrite its parent's otherwise.
+        self.add_argument(
+            "--plugin",
+            action="append",
+            dest=PLUGIN_DEST + self.prog,
+            default=argparse.SUPPRESS,
+            metavar="MODULE",
+            help="load a plugin first: a module name or a .py file (repeatable)",
+        )
+
+    def add_subparsers(self, **kwargs):
+        action = super().add_subparsers(**kwargs)
+        self.subcommands = action.choices
+        return action
+
     def error(self, message: str):  # one clear line instead of usage + message
         raise UsageError(message)
+
+
+def plugin_arguments(args: argparse.Namespace) -> list[str]:
+    """Every `--plugin` value of a parsed command line, wherever it was given."""
+    return [m for k, v in vars(args).items() if k.startswith(PLUGIN_DEST) for m in v]
 
 
 def _int_arg(name: str, low: int):
@@ -115,6 +148,38 @@ def _add_profile_parser(commands) -> None:
     profile.add_argument("--out", required=True, help="run directory (created)")
 
 
+def _add_suite_options(parser: argparse.ArgumentParser, example: str) -> None:
+    """The options `reproduce` and `sweep` share (how a suite runs, not what it runs)."""
+    parser.add_argument(
+        "--only",
+        action="append",
+        default=[],
+        metavar="PATTERN",
+        help=f"run only jobs whose <group>/<setting> name matches (repeatable), e.g. {example!r}",
+    )
+    parser.add_argument(
+        "--backend", default="local", help="local (process pool, default) or ray (Ray tasks)"
+    )
+    parser.add_argument(
+        "--workers",
+        type=_int_arg("workers", 0),
+        default=0,
+        help="jobs at a time (default: one per CPU core locally, all at once on Ray)",
+    )
+    parser.add_argument(
+        "--devices-per-job",
+        type=_int_arg("devices_per_job", 0),
+        default=0,
+        help="CPU cores each job shards its seeds over (default: cores / workers)",
+    )
+    parser.add_argument(
+        "--ray-address", default=None, help="Ray cluster: auto or HOST:PORT (default: start one)"
+    )
+    parser.add_argument("--list", action="store_true", help="print the plan and exit")
+    parser.add_argument("--quiet", action="store_true", help="no progress display")
+    parser.add_argument("--out", required=True, help="suite directory (rerun to resume)")
+
+
 def _add_reproduce_parsers(commands) -> None:
     reproduce = commands.add_parser(
         "reproduce", help="run the paper's whole experiment suite into one directory (resumable)"
@@ -124,35 +189,14 @@ def _add_reproduce_parsers(commands) -> None:
         action="store_true",
         help="3 seeds, a fifth of the iterations: every setting and figure, in minutes",
     )
-    reproduce.add_argument(
-        "--only",
-        action="append",
-        default=[],
-        metavar="PATTERN",
-        help="run only jobs whose <group>/<setting> name matches (repeatable), "
-        "e.g. 'attacks/er21_*'",
+    _add_suite_options(reproduce, "attacks/er21_*")
+
+    sweep = commands.add_parser(
+        "sweep",
+        help="run a grid of envs × learners × attacks × defenses from a TOML file (resumable)",
     )
-    reproduce.add_argument(
-        "--backend", default="local", help="local (process pool, default) or ray (Ray tasks)"
-    )
-    reproduce.add_argument(
-        "--workers",
-        type=_int_arg("workers", 0),
-        default=0,
-        help="jobs at a time (default: one per CPU core locally, all at once on Ray)",
-    )
-    reproduce.add_argument(
-        "--devices-per-job",
-        type=_int_arg("devices_per_job", 0),
-        default=0,
-        help="CPU cores each job shards its seeds over (default: cores / workers)",
-    )
-    reproduce.add_argument(
-        "--ray-address", default=None, help="Ray cluster: auto or HOST:PORT (default: start one)"
-    )
-    reproduce.add_argument("--list", action="store_true", help="print the plan and exit")
-    reproduce.add_argument("--quiet", action="store_true", help="no progress display")
-    reproduce.add_argument("--out", required=True, help="suite directory (rerun to resume)")
+    sweep.add_argument("grid", help="grid file (TOML; see docs/examples/grid.toml)")
+    _add_suite_options(sweep, "my_grid/*_clean")
 
     report = commands.add_parser(
         "report", help="report.md and report.html (figures, tables, claims) from a suite directory"
@@ -162,8 +206,15 @@ def _add_reproduce_parsers(commands) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="pimbot", description=__doc__.split("\n")[0])
-    commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    parser = _Parser(
+        prog="pimbot",
+        description=pimbot.__doc__,
+        epilog="`pimbot COMMAND --help` shows a command's options.",
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {pimbot.__version__}")
+    commands = parser.add_subparsers(
+        dest="command", metavar="COMMAND", required=False, parser_class=_Parser
+    )
 
     train = commands.add_parser("train", help="train one learner on one environment, S seeds")
     train.add_argument("env_id", help="environment id (see `pimbot envs`)")
@@ -227,7 +278,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     table = commands.add_parser("table", help="Markdown table of finished runs' final metrics")
     table.add_argument("run_dirs", nargs="+", help="run directories")
-    plot = commands.add_parser("plot", help="learning curves of runs (mean ± 95 % CI) as PNG")
+    plot = commands.add_parser("plot", help="learning curves of runs (mean ± 95 %% CI) as PNG")
     plot.add_argument("run_dirs", nargs="+", help="run directories")
     plot.add_argument("--out", required=True, help="PNG file to write")
 
@@ -275,9 +326,11 @@ def cmd_attacks() -> int:
 
     for name in attacks.registered():
         cls = attacks.attack_class(name)
-        doc = (cls.__doc__ or "").strip().splitlines()[0]
-        needs = " (needs an incentive channel: lio)" if cls.needs_incentives else ""
-        print(f"{name} [{cls.lever} lever]{needs}: {doc}")
+        doc = ((cls.__doc__ or "").strip().splitlines() or [""])[0]
+        tags = [f"{cls.lever} lever"] if getattr(cls, "lever", None) else []
+        if getattr(cls, "hooks", ()):
+            tags.append("hooks: " + ", ".join(cls.hooks))
+        print(f"{name} [{'; '.join(tags)}]: {doc}" if tags else f"{name}: {doc}")
         for param, default in attacks.parameters(name).items():
             print(f"    {param} = {default!r}")
     return 0
@@ -427,10 +480,11 @@ def cmd_profile(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_reproduce(args: argparse.Namespace) -> int:
+def _run_suite(jobs, args: argparse.Namespace, suite_name: str, loaded: tuple[str, ...]) -> int:
+    """`--list` or run `jobs` into `args.out` (the machinery of reproduce and sweep)."""
     from pathlib import Path
 
-    from pimbot.experiment import presets, sweep
+    from pimbot.experiment import sweep
     from pimbot.experiment.jobs import KINDS
 
     if args.backend not in sweep.BACKENDS:
@@ -439,14 +493,14 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         )
     if args.ray_address is not None and args.backend != "ray":
         raise UsageError("ray_address: given without --backend ray")
-    suite_name = "quick" if args.quick else "full"
     try:
-        jobs = sweep.select(presets.suite(quick=args.quick), args.only)
+        jobs = sweep.select(jobs, args.only)
         if args.list:
             statuses = sweep.plan(jobs, Path(args.out))
+            width = max([36] + [len(job.name) + 1 for job in jobs])
             for job in jobs:
                 what = KINDS[job.kind].describe(job.spec)
-                print(f"{job.name:<36} {job.kind:<10} {statuses[job.name]:<9} {what}")
+                print(f"{job.name:<{width}} {job.kind:<10} {statuses[job.name]:<9} {what}")
             return 0
         options = sweep.SweepOptions(
             backend=args.backend,
@@ -454,19 +508,37 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
             devices_per_job=args.devices_per_job,
             ray_address=args.ray_address,
             progress=not args.quiet,
+            plugins=loaded,
         )
         result = sweep.run(jobs, args.out, suite_name, options)
     except sweep.SweepError as error:
         raise UsageError(str(error)) from None
     finished = sum(e["status"] == "finished" for e in result.index["jobs"])
+    total = len(result.index["jobs"])
+    if not result.ran:
+        print(f"{args.out}: all {len(jobs)} selected jobs have already finished; nothing to do.")
     print(
-        f"{args.out}: {finished}/{len(result.index['jobs'])} jobs finished "
+        f"{args.out}: {finished}/{total} jobs finished "
         f"({result.wall_s / 60:.1f} min this session); next: pimbot report {args.out}"
     )
     if result.failed:
         print(f"failed: {', '.join(result.failed)} (see {args.out}/index.json)", file=sys.stderr)
         return 1
     return 0
+
+
+def cmd_reproduce(args: argparse.Namespace, loaded: tuple[str, ...]) -> int:
+    from pimbot.experiment import presets
+
+    suite_name = "quick" if args.quick else "full"
+    return _run_suite(presets.suite(quick=args.quick), args, suite_name, loaded)
+
+
+def cmd_sweep(args: argparse.Namespace, loaded: tuple[str, ...]) -> int:
+    from pimbot.experiment import grid
+
+    spec, jobs = grid.load_jobs(args.grid)  # every job resolved: nothing written on bad input
+    return _run_suite(jobs, args, spec.name, loaded)
 
 
 def cmd_report(args: argparse.Namespace) -> int:
@@ -486,38 +558,49 @@ def main(argv: list[str] | None = None) -> int:
     from pimbot.envs.core import InvalidParameter
 
     try:
-        args = build_parser().parse_args(argv)
-        if args.command == "envs":
-            return cmd_envs()
-        if args.command == "learners":
-            return cmd_learners()
-        if args.command == "attacks":
-            return cmd_attacks()
-        if args.command in ("defenses", "audit"):
-            return defense_cli.run(args)
-        if args.command == "robot":
-            return robot_cli.run(args)
-        if args.command == "table":
-            return cmd_table(args)
-        if args.command == "plot":
-            return cmd_plot(args)
-        if args.command == "profile":
-            jax_setup.enable_compilation_cache()
-            return cmd_profile(args)
-        if args.command == "reproduce":
-            return cmd_reproduce(args)
-        if args.command == "report":
-            return cmd_report(args)
-        jax_setup.use_all_cpu_cores()
-        jax_setup.enable_compilation_cache()
-        return cmd_train(args)
-    except (UsageError, InvalidParameter) as error:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        if args.command is None:  # bare `pimbot`: the commands, not an error
+            print(parser.format_help(), end="")
+            return 0
+        if args.command == "train":
+            jax_setup.use_all_cpu_cores()  # before a plugin's first jax computation
+        loaded = plugins.load_plugins(plugin_arguments(args))
+        return _dispatch(args, loaded)
+    except (UsageError, InvalidParameter, plugins.PluginError) as error:
         print(f"pimbot: error: {error}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("pimbot: interrupted; rerun the same command to resume", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # `pimbot envs | head`: the reader left, nothing to report
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+def _dispatch(args: argparse.Namespace, loaded: tuple[str, ...]) -> int:
+    """Runs the parsed command; plugins are loaded, so the registries are complete."""
+    listings = {"envs": cmd_envs, "learners": cmd_learners, "attacks": cmd_attacks}
+    if args.command in listings:
+        return listings[args.command]()
+    if args.command in ("defenses", "audit"):
+        return defense_cli.run(args)
+    if args.command == "robot":
+        return robot_cli.run(args)
+    if args.command == "table":
+        return cmd_table(args)
+    if args.command == "plot":
+        return cmd_plot(args)
+    if args.command == "profile":
+        jax_setup.enable_compilation_cache()
+        return cmd_profile(args)
+    if args.command == "reproduce":
+        return cmd_reproduce(args, loaded)
+    if args.command == "sweep":
+        return cmd_sweep(args, loaded)
+    if args.command == "report":
+        return cmd_report(args)
+    jax_setup.enable_compilation_cache()
+    return cmd_train(args)

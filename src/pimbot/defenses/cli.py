@@ -137,7 +137,7 @@ def cmd_defenses() -> int:
 
     for name in defenses.registered():
         cls = defenses.defense_class(name)
-        doc = (cls.__doc__ or "").strip().splitlines()[0]
+        doc = ((cls.__doc__ or "").strip().splitlines() or [""])[0]
         print(f"{name} [training, honest agents]: {doc}")
         for param, default in defenses.parameters(name).items():
             print(f"    {param} = {default!r}")

@@ -1,5 +1,6 @@
 """The kinds of suite job: how each one runs, resumes and reports its status.
 
+A `Job` is one run directory of a suite: a name, a kind and the kind's spec.
 A kind is four small functions on (job directory, spec): `status` (finished,
 partial or pending; raises `JobConflict` when the directory holds a different
 job), `execute` (runs or resumes it), `progress` (fraction done, for the
@@ -17,6 +18,26 @@ from pathlib import Path
 from typing import Any
 
 from pimbot.experiment import store
+
+
+@dataclasses.dataclass(frozen=True)
+class Job:
+    """One run directory of a suite."""
+
+    name: str
+    """`<group>/<setting>`; also the run directory relative to the suite directory."""
+    kind: str
+    """A key of `KINDS`: "train" (spec is a RunConfig), "profile" (a ProfileConfig, paired)
+    or "robot_eval" (a presets.RobotEval)."""
+    spec: Any
+    claims: tuple[str, ...] = ()
+    """The published claims (C1–C8) this job feeds."""
+    after: tuple[str, ...] = ()
+    """Jobs whose results this one reads (it starts once they have finished)."""
+
+    @property
+    def group(self) -> str:
+        return self.name.split("/", 1)[0]
 
 
 class JobConflict(Exception):
@@ -124,7 +145,11 @@ def train_describe(run) -> str:
     attack = run.attack or "clean"
     if run.attack_params:
         attack += "(" + ",".join(f"{k}={v}" for k, v in run.attack_params) + ")"
-    return f"{run.learner} {run.env_id}{params} {attack} ×{run.seeds} seeds, {run.iterations} it"
+    defended = "".join(f" +{name}" for name, _ in run.defenses)
+    return (
+        f"{run.learner} {run.env_id}{params} {attack}{defended} ×{run.seeds} seeds, "
+        f"{run.iterations} it"
+    )
 
 
 @dataclasses.dataclass(frozen=True)

@@ -16,7 +16,9 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from pimbot.experiment.config import DEFAULT_EVAL, FALLBACK_EVAL, RunConfig
+from pimbot.experiment import grid
+from pimbot.experiment.config import DEFAULT_EVAL, FALLBACK_EVAL
+from pimbot.experiment.jobs import Job
 from pimbot.profiling.decision_loop import ProfileConfig
 
 SHARED_UPDATES = (("original_shared_incentive_updates", True),)
@@ -47,25 +49,6 @@ QUICK_DEFENSE_SLICE = ("er21", ("clean", "fake_incentive", "bypass"), ("guard", 
 """(setting, attacks, defense sets) the quick suite keeps of the defense matrix."""
 QUICK_ROBOT_CONDITIONS = ("clean", "bypass")
 """The quick suite drives these runs of each ER config (the redundancy effect)."""
-
-
-@dataclasses.dataclass(frozen=True)
-class Job:
-    """One run directory of the suite."""
-
-    name: str
-    """`<group>/<setting>`; also the run directory relative to the suite directory."""
-    kind: str
-    """"train" (spec is a RunConfig) or "profile" (spec is a ProfileConfig, paired)."""
-    spec: Any
-    claims: tuple[str, ...] = ()
-    """The published claims (C1–C8) this job feeds."""
-    after: tuple[str, ...] = ()
-    """Jobs whose results this one reads (it starts once they have finished)."""
-
-    @property
-    def group(self) -> str:
-        return self.name.split("/", 1)[0]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -133,30 +116,40 @@ def scaled(setting: Setting, scale: Scale) -> tuple[int, int | None]:
     return eval_period * evals, eval_period
 
 
-def train_job(
-    group: str,
-    setting: Setting,
-    condition: str,
-    attack: str | None,
-    attack_params: tuple[tuple[str, Any], ...],
-    scale: Scale,
-    claims: tuple[str, ...],
-    learner: str = "lio",
-    hparams: tuple[tuple[str, Any], ...] | None = None,
-) -> Job:
+def grid_env(setting: Setting, scale: Scale) -> grid.EnvEntry:
+    """`setting` as a grid env entry under `scale` (its own budget and hparams)."""
     iterations, eval_period = scaled(setting, scale)
-    run = RunConfig(
-        env_id=setting.env_id,
-        env_params=setting.env_params,
-        learner=learner,
-        hparams=setting.hparams if hparams is None else hparams,
-        seeds=scale.seeds,
+    return grid.EnvEntry(
+        setting.env_id,
+        setting.env_params,
+        label=setting.label,
         iterations=iterations,
         eval_period=eval_period,
-        attack=attack,
-        attack_params=attack_params,
+        hparams=setting.hparams,
     )
-    return Job(f"{group}/{setting.label}_{condition}", "train", run, claims)
+
+
+NO_DEFENSE = grid.DefenseEntry()
+
+
+def paper_grid(
+    group: str,
+    settings: tuple[Setting, ...],
+    conditions: tuple[str, ...],
+    scale: Scale,
+    learner: str = "lio",
+    defense: grid.DefenseEntry = NO_DEFENSE,
+) -> grid.Grid:
+    """Settings × conditions (`ATTACK_CONDITIONS` keys) of one learner, named
+    `<group>/<setting>_<condition>[_<defense>]` (the learner is left out of the names)."""
+    return grid.Grid(
+        name=group,
+        envs=tuple(grid_env(s, scale) for s in settings),
+        learners=(grid.LearnerEntry(learner, label=""),),
+        seeds=scale.seeds,
+        attacks=tuple(grid.AttackEntry(*ATTACK_CONDITIONS[c], label=c) for c in conditions),
+        defenses=(defense,),
+    )
 
 
 def attack_jobs(scale: Scale) -> list[Job]:
@@ -170,23 +163,18 @@ def attack_jobs(scale: Scale) -> list[Job]:
         "admo_stealthy": ("C5",),
         "admo_disrupt": ("C5",),
     }
-    return [
-        train_job("attacks", setting, condition, attack, params, scale, claims[condition])
-        for setting in ATTACK_SETTINGS
-        for condition, (attack, params) in ATTACK_CONDITIONS.items()
-    ]
+    cells = grid.expand_cells(
+        paper_grid("attacks", ATTACK_SETTINGS, tuple(ATTACK_CONDITIONS), scale)
+    )
+    return [dataclasses.replace(c.job, claims=claims[c.attack.label]) for c in cells]
 
 
 def stag_hunt_jobs(scale: Scale) -> list[Job]:
     """C6: LIO baseline vs ADMO (disrupt) on the Stag Hunt gridworld, N = 2, 3, 4."""
-    return [
-        train_job("stag_hunt", setting, condition, attack, params, scale, ("C6",))
-        for setting in STAG_HUNT_SETTINGS
-        for condition, (attack, params) in (
-            ("clean", (None, ())),
-            ("admo_disrupt", ATTACK_CONDITIONS["admo_disrupt"]),
-        )
-    ]
+    jobs = grid.expand(
+        paper_grid("stag_hunt", STAG_HUNT_SETTINGS, ("clean", "admo_disrupt"), scale)
+    )
+    return [dataclasses.replace(job, claims=("C6",)) for job in jobs]
 
 
 def profile_jobs(scale: Scale) -> list[Job]:
@@ -235,17 +223,11 @@ def reciprocator_jobs(scale: Scale) -> list[Job]:
     """C7: Reciprocators clean vs ADMO (ER, IPD N = 2, 3, 4, Stag Hunt N = 2, 3, 4) and the
     2-player IPD fidelity runs (NL vs NL, NL vs Reciprocator, the spec's balance)."""
     return [
-        train_job(
-            "reciprocators",
-            setting,
-            condition,
-            *ATTACK_CONDITIONS[condition],
-            scale,
-            ("C7",),
-            learner=learner,
-        )
+        dataclasses.replace(job, claims=("C7",))
         for setting, learner, conditions in _reciprocator_settings()
-        for condition in conditions
+        for job in grid.expand(
+            paper_grid("reciprocators", (setting,), conditions, scale, learner=learner)
+        )
     ]
 
 
@@ -277,32 +259,39 @@ DEFENDED_ATTACKS = ("clean", "fake_incentive", "bypass", "reverse", "self_center
 def defense_jobs(scale: Scale) -> list[Job]:
     """The defense matrix: {clean, each attack} × {each defense, all} on ER(2,1), ER(4,3),
     IPD, plus guard + monitor without the floor on clean and fake-incentive ER."""
+    env_kept, attacks_kept, defenses_kept = QUICK_DEFENSE_SLICE
     jobs = []
     for label, names in DEFENSE_SETS.items():
+        defense = grid.DefenseEntry(tuple((n, ()) for n in names), label=label)
         for setting in DEFENSE_SETTINGS:
-            for condition in DEFENDED_ATTACKS:
-                env_kept, attacks_kept, defenses_kept = QUICK_DEFENSE_SLICE
-                if not scale.full_matrices and (
-                    setting.label != env_kept
-                    or condition not in attacks_kept
-                    or label not in defenses_kept
-                ):
-                    continue
-                if label == "guard_monitor" and (
-                    setting.env_id != "escape_room-v0"
-                    or condition not in ("clean", "fake_incentive")
-                ):
-                    continue
-                job = train_job(
-                    "defenses", setting, condition, *ATTACK_CONDITIONS[condition], scale, ()
-                )
-                run = dataclasses.replace(job.spec, defenses=tuple((n, ()) for n in names))
-                name = f"{job.name}_{label}"
-                jobs.append(
-                    dataclasses.replace(
-                        job, name=name, spec=run, after=(f"attacks/{setting.label}_{condition}",)
+            conditions = tuple(
+                condition
+                for condition in DEFENDED_ATTACKS
+                if (
+                    scale.full_matrices
+                    or (
+                        setting.label == env_kept
+                        and condition in attacks_kept
+                        and label in defenses_kept
                     )
                 )
+                and (
+                    label != "guard_monitor"
+                    or (
+                        setting.env_id == "escape_room-v0"
+                        and condition in ("clean", "fake_incentive")
+                    )
+                )
+            )
+            if not conditions:
+                continue
+            cells = grid.expand_cells(
+                paper_grid("defenses", (setting,), conditions, scale, defense=defense)
+            )
+            jobs += [
+                dataclasses.replace(c.job, after=(f"attacks/{setting.label}_{c.attack.label}",))
+                for c in cells
+            ]
     return jobs
 
 

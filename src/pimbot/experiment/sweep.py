@@ -9,7 +9,10 @@ seeds. Rerunning on DIR skips finished jobs and resumes interrupted ones from
 their checkpoints; a job directory holding a different config is refused
 before anything runs. Each job holds an exclusive lock on its directory while
 it runs, and local workers exit as soon as the process that started them dies,
-so a killed sweep leaves nothing behind that could race a rerun.
+so a killed sweep leaves nothing behind that could race a rerun. Workers load
+the plugins of `SweepOptions.plugins` (and the installed entry-point plugins)
+before running a job, so jobs may use plugin-registered envs, learners,
+attacks and defenses on either backend.
 """
 
 from __future__ import annotations
@@ -28,10 +31,10 @@ from concurrent import futures
 from pathlib import Path
 from typing import Any
 
+from pimbot import plugins as plugin_loader
 from pimbot.envs.core import InvalidParameter
 from pimbot.experiment import store
-from pimbot.experiment.jobs import KINDS, JobConflict
-from pimbot.experiment.presets import Job
+from pimbot.experiment.jobs import KINDS, Job, JobConflict
 
 INDEX = "index.json"
 BACKENDS = ("local", "ray")
@@ -56,6 +59,8 @@ class SweepOptions:
     progress: bool = True
     chunk_iterations: int = 2000
     """Iterations per compiled chunk and checkpoint of every training job."""
+    plugins: tuple[str, ...] = ()
+    """Plugin modules every worker loads (as `plugins.load_plugins` returned them)."""
 
 
 def select(jobs: list[Job], patterns: Iterable[str] | None) -> list[Job]:
@@ -104,10 +109,15 @@ def _configure_worker(devices: int) -> None:
 
 
 def execute_job(
-    job: Job, suite_dir: str, devices: int, chunk_iterations: int = 2000
+    job: Job,
+    suite_dir: str,
+    devices: int,
+    chunk_iterations: int = 2000,
+    plugins: tuple[str, ...] = (),
 ) -> dict[str, Any]:
     """Runs (or resumes, or confirms finished) one job; returns its status record."""
     _configure_worker(devices)
+    plugin_loader.load_plugins(plugins, from_env=False)  # once per process
     path = job_dir(Path(suite_dir), job)
     path.parent.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -151,7 +161,7 @@ def _local_worker_init(parent: int, devices: int) -> None:
 class LocalBackend:
     """A process pool on this machine (fresh `spawn`ed processes, so jax starts clean)."""
 
-    def __init__(self, workers: int, devices: int, chunk_iterations: int):
+    def __init__(self, workers: int, devices: int, options: SweepOptions):
         import multiprocessing
 
         self.pool = futures.ProcessPoolExecutor(
@@ -160,11 +170,16 @@ class LocalBackend:
             initializer=_local_worker_init,
             initargs=(os.getpid(), devices),
         )
-        self.devices, self.chunk_iterations = devices, chunk_iterations
+        self.devices, self.options = devices, options
 
     def submit(self, job: Job, suite_dir: Path) -> futures.Future:
         return self.pool.submit(
-            execute_job, job, str(suite_dir), self.devices, self.chunk_iterations
+            execute_job,
+            job,
+            str(suite_dir),
+            self.devices,
+            self.options.chunk_iterations,
+            self.options.plugins,
         )
 
     def shutdown(self) -> None:
@@ -174,7 +189,7 @@ class LocalBackend:
 class RayBackend:
     """One Ray task per job; tasks write the same run directories (a shared filesystem)."""
 
-    def __init__(self, address: str | None, devices: int, chunk_iterations: int):
+    def __init__(self, devices: int, options: SweepOptions):
         try:
             import ray
         except ImportError:
@@ -183,13 +198,14 @@ class RayBackend:
             ) from None
         self.ray = ray
         if not ray.is_initialized():
-            ray.init(address=address, include_dashboard=False, log_to_driver=False)
+            ray.init(address=options.ray_address, include_dashboard=False, log_to_driver=False)
         self.remote = ray.remote(num_cpus=devices, max_calls=1)(execute_job)
-        self.devices, self.chunk_iterations = devices, chunk_iterations
+        self.devices, self.options = devices, options
 
     def submit(self, job: Job, suite_dir: Path) -> futures.Future:
         path = str(Path(suite_dir).resolve())
-        return self.remote.remote(job, path, self.devices, self.chunk_iterations).future()
+        chunk, plugins = self.options.chunk_iterations, self.options.plugins
+        return self.remote.remote(job, path, self.devices, chunk, plugins).future()
 
     def shutdown(self) -> None:
         pass
@@ -207,6 +223,8 @@ class SweepResult:
     index: dict[str, Any]
     failed: list[str]
     wall_s: float
+    ran: list[str] = dataclasses.field(default_factory=list)
+    """The jobs this call ran or resumed (empty: every selected job had finished)."""
 
 
 def _job_entry(job: Job, status: str) -> dict[str, Any]:
@@ -288,9 +306,9 @@ def run(
     try:
         if todo:
             backend = (
-                LocalBackend(workers, devices, options.chunk_iterations)
+                LocalBackend(workers, devices, options)
                 if options.backend == "local"
-                else RayBackend(options.ray_address, devices, options.chunk_iterations)
+                else RayBackend(devices, options)
             )
             waiting = list(todo)
             selected = {job.name for job in jobs}
@@ -330,7 +348,7 @@ def run(
         display.close()
         if backend is not None:
             backend.shutdown()
-    return SweepResult(index, failed, time.perf_counter() - t0)
+    return SweepResult(index, failed, time.perf_counter() - t0, [job.name for job in todo])
 
 
 def _one_line(error: BaseException) -> str:
