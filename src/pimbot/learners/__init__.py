@@ -21,7 +21,7 @@ for _definition in (
         pg.update,
         pg.evaluate,
         pg.acting,
-        attack_hooks=("act", "policy_sign", "observe"),
+        attack_hooks=("act", "policy_sign", "adversary_step", "observe"),
         defense_hooks=("acting_epsilon",),
     ),
     LearnerDef(

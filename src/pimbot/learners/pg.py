@@ -19,7 +19,14 @@ from flax import struct
 
 from pimbot import nets
 from pimbot.contracts import defense as defense_hooks
-from pimbot.contracts.attack import NO_ATTACK, AgentParams, Attack, Outcome, attack_key
+from pimbot.contracts.attack import (
+    NO_ATTACK,
+    AdversaryView,
+    AgentParams,
+    Attack,
+    Outcome,
+    attack_key,
+)
 from pimbot.contracts.defense import NO_DEFENSE, Defenses, EpsilonContext
 from pimbot.contracts.learner import Actor
 from pimbot.envs.core import Env
@@ -193,11 +200,20 @@ def update(
     )
     success = episode_metrics(env, traj)["success"]
     env_steps = state.env_steps + traj.valid.sum()
-    # 4. the attack's own state (attack hook: observe)
-    attack_state = attack.observe(
-        state.attack_state, attack_key(state.key), Outcome(success, state.iteration, env_steps)
-    )
     metrics = {"train/epsilon": schedule_epsilon, "train/success": success}
+    # 4. a learning attack replaces the adversary's update (attack hook: adversary_step)
+    attack_state = state.attack_state
+    if "adversary_step" in attack.hooks:
+        view = adversary_view(module, attack, policy, traj, schedule_epsilon, success, cfg, state)
+        own, attack_state, attack_metrics = attack.adversary_step(
+            attack_state, attack_key(state.key), view
+        )
+        policy = jax.tree.map(lambda p, o: p.at[attack.adversary].set(o), policy, own.policy)
+        metrics.update(attack_metrics)
+    # 5. the attack's own state (attack hook: observe)
+    attack_state = attack.observe(
+        attack_state, attack_key(episode_key), Outcome(success, state.iteration, env_steps)
+    )
     new_state = PGState(
         policy=policy,
         attack_state=attack_state,
@@ -207,6 +223,35 @@ def update(
         env_steps=env_steps,
     )
     return new_state, metrics
+
+
+def adversary_view(module, attack, policy, traj, epsilon, success, cfg, state) -> AdversaryView:
+    """What a learning attack sees: the episode just played (ω = θ_a, r = env reward; the
+    adversary receives nothing). It runs no defense: its ε is the schedule's."""
+    a = attack.adversary
+
+    def log_probs(theta_a):
+        logits = module.apply(theta_a, traj.obs[:, a])
+        taken = jnp.take_along_axis(
+            nets.mixed_log_probs(logits, epsilon), traj.actions[:, a, None], axis=1
+        )
+        return taken[:, 0] * traj.valid
+
+    return AdversaryView(
+        policy=policy,  # the adversary's row is unchanged: its policy sign is 0
+        incentive=None,
+        log_probs=log_probs,
+        env_rewards=traj.env_rewards,
+        valid=traj.valid,
+        emitted=None,
+        meta_pullback=None,
+        received=jnp.zeros(traj.valid.shape, jnp.float32),
+        received_valid=traj.valid,
+        emission_scales=(),
+        success=success,
+        gamma=cfg.gamma,
+        iteration=state.iteration,
+    )
 
 
 def acting(env: Env, cfg: PGConfig, state: PGState) -> Actor:
