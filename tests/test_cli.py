@@ -48,7 +48,7 @@ BAD = [
             "--out",
             "{d}",
         ],
-        "no incentive channel",
+        "fake_incentive acts at the hook point(s) emit, which learner pg does not have",
     ),
     (["train", "escape_room-v0", "--ap", "mode=disrupt", "--out", "{d}"], "without --attack"),
 ]

@@ -604,3 +604,7 @@ def _dispatch(args: argparse.Namespace, loaded: tuple[str, ...]) -> int:
         return cmd_report(args)
     jax_setup.enable_compilation_cache()
     return cmd_train(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
