@@ -19,21 +19,12 @@ from typing import Any
 
 import numpy as np
 
+from pimbot.attacks import CONDITION_ORDER
 from pimbot.experiment import store
 from pimbot.experiment.summary import summarize
 
 CLEAN = "clean"
 NO_DEFENSE = "none"
-CONDITION_ORDER = (
-    CLEAN,
-    "self_centered",
-    "fake_incentive",
-    "bypass",
-    "reverse",
-    "admo_stealthy",
-    "admo_disrupt",
-)
-"""The paper's order of conditions; sorting only (unknown conditions sort after, by name)."""
 SIZE_PARAMS = ("n_agents", "n_players", "min_at_lever")
 """Env parameters written in the env label, in this order: ER(n_agents,min_at_lever)."""
 

@@ -18,6 +18,18 @@ from pimbot.envs.core import InvalidParameter
 for _cls in (SelfCentered, FakeIncentive, Bypass, Reverse, ADMO):
     register(_cls, replace=True)
 
+CONDITION_ORDER = (
+    "clean",
+    "self_centered",
+    "fake_incentive",
+    "bypass",
+    "reverse",
+    "admo_stealthy",
+    "admo_disrupt",
+)
+"""The paper's display order of run conditions (attack labels); for sorting only —
+conditions not in it (a plugin's) sort after it, by name."""
+
 
 def registered() -> list[str]:
     return contract.ATTACKS.names()

@@ -17,18 +17,10 @@ import json
 import sys
 from pathlib import Path
 
+from pimbot.attacks import CONDITION_ORDER
 from pimbot.experiment import store
 
 ENV_ORDER = {"ER(2,1)": 0, "ER(4,2)": 1, "ER(4,3)": 2}
-ATTACK_ORDER = (
-    "clean",
-    "self_centered",
-    "fake_incentive",
-    "bypass",
-    "reverse",
-    "admo_stealthy",
-    "admo_disrupt",
-)
 
 
 def escape_room_runs(runs_dir: Path) -> list[Path]:
@@ -94,8 +86,8 @@ def results_table(json_paths: list[Path]) -> str:
     rows.sort(
         key=lambda r: (
             ENV_ORDER.get(_env_of(r["label"]), 9),
-            ATTACK_ORDER.index(_attack_of(r["label"]))
-            if _attack_of(r["label"]) in ATTACK_ORDER
+            CONDITION_ORDER.index(_attack_of(r["label"]))
+            if _attack_of(r["label"]) in CONDITION_ORDER
             else 99,
         )
     )
