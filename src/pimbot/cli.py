@@ -306,18 +306,26 @@ def cmd_envs() -> int:
 def cmd_learners() -> int:
     import dataclasses
 
-    from pimbot import learners
+    from pimbot import envs, learners
 
     for name in learners.registered():
         definition = learners.get(name)
         print(f"{name}: {definition.description}")
-        for f in dataclasses.fields(definition.config_cls):
-            print(f"    {f.name} = {f.default!r}")
-    print(
-        "(defaults shown are the config classes' own; each learner adapts some of them per "
-        "environment, e.g. LIO's IPD column and the Reciprocator's IPD reciprocal weight 5 — "
-        "a run's config.json records the values used)"
-    )
+        print(f"    attack hooks: {', '.join(definition.attack_hooks) or 'none'}")
+        print(f"    defense hooks: {', '.join(definition.defense_hooks) or 'none'}")
+        base = dataclasses.replace(definition.config_cls(), **dict(definition.base_overrides))
+        for f in dataclasses.fields(base):
+            print(f"    {f.name} = {getattr(base, f.name)!r}")
+        for env_id in envs.registered():
+            declared = definition.default_config(envs.spec(env_id))
+            changed = {
+                f.name: getattr(declared, f.name)
+                for f in dataclasses.fields(declared)
+                if getattr(declared, f.name) != getattr(base, f.name)
+            }
+            if changed:
+                values = ", ".join(f"{k}={v!r}" for k, v in changed.items())
+                print(f"    on {env_id} (declared by the environment): {values}")
     return 0
 
 
