@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 
 from pimbot import attacks, envs, learners
 from pimbot.attacks import admo
+from pimbot.contracts.attack import Decision
 from pimbot.learners import lio, pg
 from pimbot.rollout import received, rollout
 
@@ -108,7 +109,8 @@ def test_bypass_toggle_alternates_every_k_environment_steps():
     attack = attacks.make("bypass", 3, toggle_period=3)
     actions = jnp.array([2, 2, 2])
     played = [
-        int(attack.act({}, None, actions, ENV.idle_action, jnp.int32(t))[0]) for t in range(9)
+        int(attack.act({}, None, actions, Decision(ENV.idle_action, 3, jnp.int32(t)))[0])
+        for t in range(9)
     ]
     assert played == [1, 1, 1, 2, 2, 2, 1, 1, 1]
 

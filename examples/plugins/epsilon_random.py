@@ -7,10 +7,6 @@ own key (derived from the learner's key without consuming it), so ε = 0 plays
 exactly the clean run. Everything the others model of the adversary, and its own
 learning, stays the ordinary learner's: only what it does in the env changes.
 
-`num_actions` is structural (a static field, not a traced leaf) and must match the
-env (`pimbot envs`): the `act` hook is told the env's idle action but not its number
-of actions.
-
     pimbot attacks --plugin examples/plugins/epsilon_random.py
     pimbot train escape_room-v0 --plugin examples/plugins/epsilon_random.py \
         --attack epsilon_random --ap epsilon=0.3 --out runs/eps
@@ -25,7 +21,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from pimbot.attacks import Attack, register
-from pimbot.contracts.params import check_int, check_number
+from pimbot.contracts.params import check_number
 
 
 @register
@@ -35,8 +31,6 @@ class EpsilonRandom(Attack):
 
     epsilon: float = 0.1
     """Probability of a uniformly random action at each step."""
-    num_actions: int = struct.field(pytree_node=False, default=3)
-    """Size of the env's action set (Escape Room: 3; the matrix games: 2)."""
 
     name: ClassVar[str] = "epsilon_random"
     lever: ClassVar[str] = "policy"
@@ -45,12 +39,11 @@ class EpsilonRandom(Attack):
     def validate(self, num_agents: int) -> None:
         super().validate(num_agents)
         check_number("epsilon", self.epsilon, low=0.0, high=1.0)
-        check_int("num_actions", self.num_actions, 1)
 
-    def act(self, state, key, actions, idle_action, env_step):
-        del state, idle_action, env_step
+    def act(self, state, key, actions, at):
+        del state
         coin_key, action_key = jax.random.split(key)
-        random_action = jax.random.randint(action_key, (), 0, self.num_actions, actions.dtype)
+        random_action = jax.random.randint(action_key, (), 0, at.num_actions, actions.dtype)
         randomised = jax.random.uniform(coin_key) < self.epsilon
         replace = self.is_adversary(actions.shape[0]) & randomised
         return jnp.where(replace, random_action, actions).astype(actions.dtype)

@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from pimbot.contracts.attack import NO_ATTACK, Attack, attack_key
+from pimbot.contracts.attack import NO_ATTACK, Attack, Decision, attack_key
 from pimbot.envs.core import Env
 
 # act(key, obs [N, obs_dim]) -> actions int32 [N]
@@ -79,7 +79,8 @@ def decide(
     act_key, emit_key = jax.random.split(attack_key(key))
     obs = fill_incentive_obs(env, obs, given)
     actions = act(key, obs).astype(jnp.int32)
-    actions = attack.act(state, act_key, actions, env.idle_action, env_step)
+    at = Decision(env.idle_action, env.num_actions, jnp.asarray(env_step))
+    actions = attack.act(state, act_key, actions, at)
     scale, offset = attack.emit(state, emit_key, given)
     if give is None:
         incentives = jnp.zeros((n, n), jnp.float32)

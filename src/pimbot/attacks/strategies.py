@@ -87,10 +87,10 @@ class Bypass(Attack):
         period = self.toggle_period
         return (period == 0) | ((env_step // jnp.maximum(period, 1)) % 2 == 0)
 
-    def act(self, state, key, actions, idle_action, env_step):
+    def act(self, state, key, actions, at):
         del state, key
-        bypassing = self.is_adversary(actions.shape[0]) & self.bypassing(env_step)
-        return jnp.where(bypassing, idle_action, actions).astype(actions.dtype)
+        bypassing = self.is_adversary(actions.shape[0]) & self.bypassing(at.env_step)
+        return jnp.where(bypassing, at.idle_action, actions).astype(actions.dtype)
 
 
 @struct.dataclass

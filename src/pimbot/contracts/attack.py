@@ -97,6 +97,18 @@ class AdversaryView:
 
 
 @dataclasses.dataclass(frozen=True)
+class Decision:
+    """Where `act` is consulted: what it may need of the env and of training."""
+
+    idle_action: int
+    """The env's "do nothing" action."""
+    num_actions: int
+    """Size of every agent's action set."""
+    env_step: jax.Array
+    """int32 [] environment steps taken in training before this decision."""
+
+
+@dataclasses.dataclass(frozen=True)
 class Outcome:
     """What `observe` sees after each iteration."""
 
@@ -143,11 +155,9 @@ class Attack:
         del key, num_agents, adversary
         return {}
 
-    def act(
-        self, state: Any, key: jax.Array, actions: jax.Array, idle_action: int, env_step
-    ) -> jax.Array:
-        """The joint action int32 [N] played; `env_step`: environment steps so far."""
-        del state, key, idle_action, env_step
+    def act(self, state: Any, key: jax.Array, actions: jax.Array, at: Decision) -> jax.Array:
+        """The joint action int32 [N] played instead of the learners' `actions`."""
+        del state, key, at
         return actions
 
     def emit(
