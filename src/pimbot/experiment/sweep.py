@@ -93,9 +93,21 @@ def job_status(suite_dir: Path, job: Job) -> str:
         raise SweepError(f"{job.name}: {error}") from None
 
 
-def _configure_worker(devices: int) -> None:
-    """Process setup before jax is imported: host devices and the compilation cache."""
+def _jax_backends_started() -> bool:
+    """Whether XLA's backends exist already (XLA_FLAGS is read when they start, not when
+    jax is imported: a spawned worker imports jax with this module)."""
     if "jax" not in sys.modules:
+        return False
+    try:
+        from jax._src import xla_bridge
+    except ImportError:  # pragma: no cover - a jax without the module: assume started
+        return True
+    return bool(xla_bridge.backends_are_initialized())
+
+
+def _configure_worker(devices: int) -> None:
+    """Process setup before XLA starts: host devices and the compilation cache."""
+    if not _jax_backends_started():
         kept = os.environ.get("XLA_FLAGS", "").split()
         flags = " ".join(f for f in kept if "xla_force_host_platform_device_count" not in f)
         if devices > 1:
