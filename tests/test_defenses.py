@@ -311,7 +311,10 @@ def test_defense_config_errors_name_the_field():
         (["--dp", "min_epsilon=0.3"], "defense_param: given without --defense"),
         (["--defense", "exploration_floor", "--dp", "min_epsilon=2"], "min_epsilon: must be"),
         (["--defense", "incentive_guard", "--dp", "zz=1"], "defense_param: 'zz' is not"),
-        (["--defense", "incentive_guard", "--learner", "pg"], "defenses: defenses hook into"),
+        (
+            ["--defense", "incentive_guard", "--learner", "pg"],
+            "defenses: incentive_guard acts at the hook point(s) learning_incentives",
+        ),
     ],
 )
 def test_train_defense_errors_are_one_line_exit_2_nothing_written(tmp_path, capsys, argv, expected):

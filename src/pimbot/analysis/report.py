@@ -66,13 +66,10 @@ def claim_coverage(index: dict) -> dict[str, tuple[int, int]]:
     return {c: (done, planned) for c, (done, planned) in coverage.items()}
 
 
-PAPER_SUITES = ("quick", "full")
-"""The suite names `pimbot reproduce` writes; other directories (a `pimbot sweep` grid)
-get no claims table."""
-
-
 def is_paper_suite(index: dict) -> bool:
-    return index.get("suite") in PAPER_SUITES
+    """Whether the directory holds jobs of the paper's suite (they name the claims they
+    feed); a `pimbot sweep` grid's jobs feed none and get no claims table."""
+    return any(job.get("claims") for job in index.get("jobs", []))
 
 
 def claims_table(sections: list[Section], index: dict) -> list[Claim]:
