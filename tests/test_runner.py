@@ -118,3 +118,38 @@ def test_sigkill_then_rerun_resumes_with_identical_results(tmp_path):
     assert keys == [(r["iteration"], r["seed"]) for r in clean_rows]
     for a, b in zip(resumed_rows, clean_rows, strict=True):
         assert {c: a[c] for c in _learning_columns(a)} == {c: b[c] for c in _learning_columns(b)}
+
+
+@pytest.mark.parametrize(
+    ("attack", "defense", "a", "b"),
+    [
+        ("fake_incentive", None, {"amount": 10.0}, {"amount": 50.0}),
+        ("admo", None, {"lr": 1e-3, "budget": 10.0}, {"lr": 3e-4, "budget": 2.0}),
+        ("bypass", None, {"toggle_period": 0}, {"toggle_period": 1000}),
+        (None, "incentive_guard", {"outlier_z": 8.0}, {"outlier_z": 2.0}),
+        (None, "health_monitor", {"patience": 50}, {"patience": 5}),
+    ],
+)
+def test_runs_differing_only_in_attack_or_defense_numbers_share_one_program(attack, defense, a, b):
+    """Numeric attack and defense parameters are traced data, not constants: the chunk
+    lowered for two configs that differ only in them is one and the same program."""
+    import dataclasses
+
+    from pimbot.experiment.config import resolve
+
+    base = RunConfig(**{**SMALL, "iterations": 20, "eval_period": 10, "seeds": 2})
+
+    def resolved(params):
+        if attack:
+            return resolve(
+                dataclasses.replace(base, attack=attack, attack_params=tuple(params.items()))
+            )
+        return resolve(dataclasses.replace(base, defenses=((defense, tuple(params.items())),)))
+
+    first, second = resolved(a), resolved(b)
+    assert (first.attack, first.defenses) != (second.attack, second.defenses)
+    keys = runner.seed_keys(0, 2)
+    states = runner.init_states(first, keys)
+    fn = runner.make_chunk_fn(first, 1)
+    texts = [fn.lower(states, keys, r.attack, r.defenses).as_text() for r in (first, second)]
+    assert texts[0] == texts[1]
