@@ -22,10 +22,16 @@ from __future__ import annotations
 import functools
 from typing import Any
 
-import gymnasium
 import jax
 import numpy as np
-from pettingzoo import ParallelEnv
+
+try:
+    import gymnasium
+    from pettingzoo import ParallelEnv
+except ImportError as error:  # an extra: the base install does not carry it
+    raise ImportError(
+        "pimbot.envs.pettingzoo needs pettingzoo and gymnasium: pip install 'pimbot[pettingzoo]'"
+    ) from error
 
 from pimbot.envs.core import Env, make
 

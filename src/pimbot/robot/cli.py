@@ -84,6 +84,13 @@ def _eval(args) -> int:
         and not (Path(args.rosbag) / "metadata.yaml").exists()
     ):
         raise InvalidParameter(f"rosbag: {args.rosbag} exists and is not a ROS 2 bag")
+    if args.rosbag:
+        import importlib.util
+
+        if importlib.util.find_spec("rosbags") is None:
+            raise InvalidParameter(
+                "rosbag: writing ROS 2 bags needs the rosbags package; pip install 'pimbot[rosbag]'"
+            )
     from pimbot.experiment import store
     from pimbot.robot import evaluate
 
