@@ -55,6 +55,16 @@ class AgentParams:
     incentive: Any
 
 
+def agent_row(stacked, agent: int):
+    """Agent `agent`'s parameters from stacked ones (leaves [N, ...] -> [...])."""
+    return jax.tree.map(lambda x: x[agent], stacked)
+
+
+def with_agent_row(stacked, agent: int, own):
+    """`stacked` with agent `agent`'s parameters replaced by `own`."""
+    return jax.tree.map(lambda x, o: x.at[agent].set(o), stacked, own)
+
+
 @dataclasses.dataclass(frozen=True)
 class AdversaryView:
     """What a learner shows a learning attack's `adversary_step`, once per iteration.

@@ -31,7 +31,9 @@ from pimbot.contracts.attack import (
     AgentParams,
     Attack,
     Outcome,
+    agent_row,
     attack_key,
+    with_agent_row,
 )
 from pimbot.contracts.defense import (
     NO_DEFENSE,
@@ -152,29 +154,20 @@ def init(
     policy = nets.init_stacked(policy_module, policy_key, n, env.obs_dim)
     in_dim = env.obs_dim + (n - 1) * env.num_actions
     incentive = nets.init_stacked(incentive_module, incentive_key, n, in_dim)
+    a = attack.adversary
     return LIOState(
         policy=policy,
         incentive=incentive,
         incentive_opt=_init_meta_opt(cfg, incentive, n),
         cost_opt=optax.adam(cfg.lr_cost).init(incentive),
         attack_state=attack.init_state(
-            attack_key(key),
-            n,
-            AgentParams(_row(policy, attack.adversary), _row(incentive, attack.adversary)),
+            attack_key(key), n, AgentParams(agent_row(policy, a), agent_row(incentive, a))
         ),
         defense_state=defense_hooks.init_states(defenses, n, policy),
         key=key,
         iteration=jnp.zeros((), jnp.int32),
         env_steps=jnp.zeros((), jnp.int32),
     )
-
-
-def _row(stacked, agent: int):
-    return jax.tree.map(lambda x: x[agent], stacked)
-
-
-def _set_row(stacked, agent: int, own):
-    return jax.tree.map(lambda x, o: x.at[agent].set(o), stacked, own)
 
 
 def emitted(env, cfg, incentive, traj: Trajectory) -> jax.Array:
@@ -478,8 +471,8 @@ def update(
         own, attack_state, attack_metrics = attack.adversary_step(
             attack_state, attack_key(state.key), view
         )
-        new_policy = _set_row(new_policy, attack.adversary, own.policy)
-        incentive = _set_row(incentive, attack.adversary, own.incentive)
+        new_policy = with_agent_row(new_policy, attack.adversary, own.policy)
+        incentive = with_agent_row(incentive, attack.adversary, own.incentive)
         metrics.update(attack_metrics)
     # 7. the attack's own state (attack hook: observe)
     attack_state = attack.observe(

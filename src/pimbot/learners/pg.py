@@ -25,7 +25,9 @@ from pimbot.contracts.attack import (
     AgentParams,
     Attack,
     Outcome,
+    agent_row,
     attack_key,
+    with_agent_row,
 )
 from pimbot.contracts.defense import NO_DEFENSE, Defenses, EpsilonContext
 from pimbot.contracts.learner import Actor
@@ -153,7 +155,7 @@ def init(
     module = nets.policy_module(cfg.policy_hidden, env.num_actions)
     init_key, key = jax.random.split(key)
     policy = nets.init_stacked(module, init_key, env.num_agents, env.obs_dim)
-    own = jax.tree.map(lambda x: x[attack.adversary], policy)
+    own = agent_row(policy, attack.adversary)
     zero = jnp.zeros((), jnp.int32)
     return PGState(
         policy=policy,
@@ -208,7 +210,7 @@ def update(
         own, attack_state, attack_metrics = attack.adversary_step(
             attack_state, attack_key(state.key), view
         )
-        policy = jax.tree.map(lambda p, o: p.at[attack.adversary].set(o), policy, own.policy)
+        policy = with_agent_row(policy, attack.adversary, own.policy)
         metrics.update(attack_metrics)
     # 5. the attack's own state (attack hook: observe)
     attack_state = attack.observe(

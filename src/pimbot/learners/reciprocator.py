@@ -35,7 +35,9 @@ from pimbot.contracts.attack import (
     AgentParams,
     Attack,
     Outcome,
+    agent_row,
     attack_key,
+    with_agent_row,
 )
 from pimbot.contracts.defense import NO_DEFENSE, Defenses
 from pimbot.contracts.learner import Actor
@@ -141,7 +143,7 @@ def init(
         future=jnp.zeros(shape + (n,), jnp.float32),
         valid=jnp.zeros(shape, bool),
     )
-    own = jax.tree.map(lambda x: x[attack.adversary], policy)
+    own = agent_row(policy, attack.adversary)
     attack_state = attack.init_state(attack_key(key), n, AgentParams(own, {}))
     del defenses  # the Reciprocator has no defense hook point
     zero = jnp.zeros((), jnp.int32)
@@ -328,7 +330,7 @@ def update(
         own, attack_state, attack_metrics = attack.adversary_step(
             attack_state, attack_key(state.key), view
         )
-        policy = jax.tree.map(lambda p, o: p.at[attack.adversary].set(o), policy, own.policy)
+        policy = with_agent_row(policy, attack.adversary, own.policy)
         metrics.update(attack_metrics)
     env_steps = state.env_steps + trajs.valid.sum()
     # 6. the attack's own state (attack hook: observe)
