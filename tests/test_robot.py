@@ -28,6 +28,7 @@ from pimbot.robot.world import (
     MAX_LINEAR,
     WHEEL_RADIUS,
     WHEEL_SEPARATION,
+    ZONE_NAMES,
     build_world,
     sample_layout,
 )
@@ -279,6 +280,36 @@ def test_matplotlib_render_writes_a_gif_of_the_trajectory(tmp_path):
     assert np.abs(first.astype(int) - last).sum() > 0  # the robots moved
 
 
+def test_frames_name_the_zones_mark_the_adversary_and_show_door_and_decision():
+    cfg = ep.PhysicsConfig(n_robots=2, min_at_lever=1)
+    result = ep.run_episode(
+        ep.ScriptedPolicy(np.array([[LEVER, DOOR]])), cfg, np.random.default_rng(1)
+    )
+    last = render.frame_indices(result, 10, 8.0)[-1:]
+    assert render.decision_at(result, 0) == 1
+    assert render.decision_at(result, int(last[0])) == result.steps
+    line, is_open = render.status(result, int(last[0]))
+    assert line.startswith(f"decision {result.steps} of {result.steps}")
+    assert ("door OPEN" in line) == is_open and ("door CLOSED" in line) != is_open
+    assert render.robot_label(result, 1, 1, adversary=1) == "1 adversary → door"
+    assert render.robot_label(result, 0, 1, adversary=1) == "0 → lever"
+    assert set(render.ZONE_ROLES) == set(ZONE_NAMES)  # the legend names every zone
+
+    def red(frame: np.ndarray) -> int:  # the adversary's colour, #d00000
+        r, g, b = (frame[..., c].astype(int) for c in range(3))
+        return int(((r > 190) & (g < 40) & (b < 40)).sum())
+
+    marked = render.matplotlib_frames(result, last, title="t", adversary=1)[0]
+    honest = render.matplotlib_frames(result, last, title="t")[0]
+    assert marked.shape == honest.shape == (480, 640, 3)
+    assert red(marked) > 200 and red(honest) == 0
+    # The adversary comes from the run's attack parameters; a clean run has none.
+    assert render.adversary_of({"identity": {"attack": None, "attack_params": {}}}) is None
+    assert render.adversary_of({"identity": {"attack": "bypass", "attack_params": {}}}) == 0
+    attacked = {"identity": {"attack": "bypass", "attack_params": {"adversary": 1}}}
+    assert render.adversary_of(attacked) == 1
+
+
 MUJOCO_RENDER = textwrap.dedent(
     """
     import sys
@@ -291,9 +322,11 @@ MUJOCO_RENDER = textwrap.dedent(
     from pimbot.robot import episode as ep, render
     cfg = ep.PhysicsConfig(n_robots=2, min_at_lever=1)
     result = ep.run_episode(ep.ScriptedPolicy(np.array([[0, 2]])), cfg, np.random.default_rng(1))
-    frames = render.mujoco_frames(result, render.frame_indices(result, 10, 8.0)[[0, -1]])
+    indices = render.frame_indices(result, 10, 8.0)[[0, -1]]
+    frames = render.mujoco_frames(result, indices, adversary=1, title="scripted")
     render.write_png(frames[-1], __import__("pathlib").Path(sys.argv[1]))
     first, last = (f.astype(int) for f in frames)
+    assert last.shape == (480, 640, 3)  # the scene over the legend and status strip
     # Zone markers are red, blue and green patches; robots moved between the frames.
     red = (last[..., 0] > 150) & (last[..., 1] < 130) & (last[..., 2] < 130)
     assert red.sum() > 500, red.sum()

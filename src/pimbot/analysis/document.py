@@ -8,11 +8,13 @@ reports, so that the generic section shows only the others.
 from __future__ import annotations
 
 import dataclasses
+import re
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
 from pimbot.analysis.runs import RunRecord, RunTable
 from pimbot.analysis.tables import Table
+from pimbot.experiment.summary import FINAL_WINDOW
 
 FIGURES = "figures"
 TABLES = "tables"
@@ -21,8 +23,16 @@ TABLES = "tables"
 @dataclasses.dataclass
 class Figure:
     path: Path
-    """Relative to the report directory."""
+    """The PNG, relative to the report directory; the SVG of the same figure lies beside it."""
     caption: str
+
+    @property
+    def svg(self) -> Path:
+        return self.path.with_suffix(".svg")
+
+    @property
+    def anchor(self) -> str:
+        return slug(self.path.stem)
 
 
 @dataclasses.dataclass
@@ -31,7 +41,10 @@ class Claim:
     claim: str
     rule: str
     measured: str
+    """Every number the verdict was judged on (the claims CSV and the details list)."""
     verdict: str
+    summary: str = ""
+    """A short form of `measured` for the claims table (empty: `measured` is short)."""
 
 
 @dataclasses.dataclass
@@ -66,3 +79,73 @@ Provider = Callable[[RunTable, Context], Section | None]
 
 def verdict(ok: bool) -> str:
     return "reproduced" if ok else "not reproduced"
+
+
+VERDICTS = {
+    "reproduced": "✔",
+    "not-reproduced": "✘",
+    "inconclusive": "◐",
+    "not-run": "○",
+}
+"""Verdict kind (its CSS class) -> the marker written before the verdict in Markdown and HTML."""
+
+
+def verdict_kind(text: str) -> str:
+    """The kind of a verdict text ("reproduced (quick budget)" -> "reproduced"), markers
+    ignored; a verdict in none of the kinds is "inconclusive"."""
+    text = text.lstrip("".join(VERDICTS.values()) + " ").lower()
+    for kind in ("not-run", "not-reproduced", "inconclusive", "reproduced"):
+        if text.startswith(kind.replace("-", " ")):
+            return kind
+    return "inconclusive"
+
+
+def marked_verdict(text: str) -> str:
+    """The verdict with its kind's marker in front: "✘ not reproduced"."""
+    return f"{VERDICTS[verdict_kind(text)]} {text}"
+
+
+# --- counts read from the runs ----------------------------------------------------------
+
+
+def count_text(values: Iterable[int], noun: str) -> str:
+    """ "3 seeds", or "2–3 seeds" where the runs differ; `noun` is the plural."""
+    values = sorted(set(values))
+    if not values:
+        return f"no {noun}"
+    one = noun[:-1] if noun.endswith("s") and values == [1] else noun
+    if len(values) == 1:
+        return f"{values[0]} {one}"
+    return f"{values[0]}–{values[-1]} {noun}"
+
+
+def iterations_text(values: Iterable[int] | int) -> str:
+    """ "10k iterations", "800 iterations", "5k–10k iterations" (never "0k")."""
+    values = sorted({values} if isinstance(values, int) else set(values))
+
+    def short(n: int) -> str:
+        return f"{n / 1000:g}k" if n >= 1000 and n % 100 == 0 else f"{n:,}"
+
+    if not values:
+        return "no iterations"
+    if len(values) == 1:
+        return f"{short(values[0])} iterations"
+    return f"{short(values[0])}–{short(values[-1])} iterations"
+
+
+def seeds_text(records: Iterable[RunRecord]) -> str:
+    """The seed count of `records`, read from their summaries: "3 seeds"."""
+    return count_text((r.seeds for r in records), "seeds")
+
+
+def final_window_text(records: Iterable[RunRecord]) -> str:
+    """How many evaluation points the final value averages, read from the summaries."""
+    return count_text(
+        (int(r.summary.get("final_window_evals", FINAL_WINDOW)) for r in records),
+        "evaluation points",
+    )
+
+
+def slug(text: str) -> str:
+    """An HTML id / Markdown anchor: lower case letters, digits and hyphens."""
+    return re.sub(r"[^a-z0-9]+", "-", text.lower()).strip("-") or "section"

@@ -10,7 +10,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from pimbot.analysis.curves import load_curve, mean_and_band  # noqa: E402
+from pimbot.analysis.curves import columns, load_curve, mean_and_band  # noqa: E402
 from pimbot.analysis.runs import RunRecord, condition_key, env_label  # noqa: E402
 from pimbot.experiment import store  # noqa: E402
 
@@ -28,6 +28,11 @@ def band(ax, run_dir: Path, column: str, label=None, color=None, lw=1.2, style="
     mean, lo, hi = mean_and_band(values)
     (line,) = ax.plot(iterations, mean, style, label=label, color=color, lw=lw)
     ax.fill_between(iterations, lo, hi, color=line.get_color(), alpha=0.15, lw=0)
+
+
+def has_curve(run_dir: Path, column: str) -> bool:
+    """Whether the run logged `column` (a panel of it would not be empty)."""
+    return column in columns(run_dir)
 
 
 def runs_of(runs: list[RunRecord], env: str) -> list[RunRecord]:
@@ -50,10 +55,20 @@ def curve_panels(
     cols: int | None = None,
     ylim: tuple[float, float] | None = None,
     title: str = "",
-) -> None:
+) -> bool:
     """One panel per (title, lines); a line is (run record, label, colour), drawn with its
-    band. A panel whose title has a random-team value for `column` gets a reference line."""
-    cols = cols or len(panels)
+    band. A panel whose title has a random-team value for `column` gets a reference line.
+
+    Lines of runs that did not log `column` are left out, a panel left with none is
+    dropped, and with no panel at all nothing is written: returns whether it was."""
+    panels = [
+        (name, kept)
+        for name, lines in panels
+        if (kept := [line for line in lines if has_curve(line[0].path, column)])
+    ]
+    if not panels:
+        return False
+    cols = min(cols or len(panels), len(panels))
     rows = (len(panels) + cols - 1) // cols
     fig, axes = plt.subplots(rows, cols, figsize=(5.2 * cols, 3.8 * rows), squeeze=False)
     for ax, (name, lines) in zip(axes.flat, panels, strict=False):
@@ -70,16 +85,32 @@ def curve_panels(
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
     for ax in list(axes.flat)[len(panels) :]:
-        ax.axis("off")
+        ax.remove()
     if title:
         fig.suptitle(title)
     save(fig, path)
+    return True
 
 
-def save(fig, path: Path, dpi: int = 110) -> None:
-    fig.tight_layout()
+def mark_zero_bars(ax, xs, heights, color) -> None:
+    """Writes "0" on bars of height 0: a measured zero, not a missing bar."""
+    for x, h in zip(xs, heights, strict=True):
+        if abs(h) < 0.005:
+            ax.annotate(
+                "0", (x, 0), xytext=(0, 2), textcoords="offset points", ha="center", fontsize=7,
+                color=color,
+            )  # fmt: skip
+
+
+def save(fig, path: Path, dpi: int = 110, svg: bool = True, top: float = 0.0) -> None:
+    """Writes the figure as `path` (PNG) and, with `svg`, as the SVG beside it (same name,
+    .svg: the report's vector copy of every figure). `top`: inches kept free above the
+    axes (a figure-wide legend)."""
+    fig.tight_layout(rect=(0, 0, 1, 1 - top / fig.get_figheight()))
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=dpi)
+    if svg:
+        fig.savefig(path.with_suffix(".svg"), metadata={"Date": None})
     plt.close(fig)
 
 
@@ -111,4 +142,4 @@ def plot_runs(run_dirs: list[Path], out: Path, columns=("eval/success", "eval/re
         ax.set_ylabel(column)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    save(fig, out, dpi=120)
+    save(fig, out, dpi=120, svg=False)

@@ -5,21 +5,44 @@ run directories); nothing is re-run. The training runs are loaded once into a
 `RunTable` (analysis.runs); each section provider turns part of it into text,
 tables, figures and the claims it can judge, and the generic provider reports
 every run no paper section read. A claim whose runs are not all finished is
-marked "not run" whatever its partial numbers say. The HTML embeds every figure
-as a data URI, so the one file can be mailed or archived.
+marked "not run" whatever its partial numbers say.
+
+The report opens with its provenance (versions, commit, backend and devices
+from the runs' config.json files, the budget of every group read from the runs,
+the generation date) and a table of contents. Every figure is a PNG with an SVG
+beside it; a figure without data is not written. The HTML embeds every PNG as a
+data URI, so the one file can be mailed or archived.
 """
 
 from __future__ import annotations
 
 import base64
 import dataclasses
+import datetime
 import html
+import os
 import re
+from collections import Counter
 from pathlib import Path
 
+import pimbot
 from pimbot.analysis import runs as run_table
 from pimbot.analysis.document import FIGURES as FIGURES
-from pimbot.analysis.document import TABLES, Claim, Context, Provider, Section
+from pimbot.analysis.document import (
+    TABLES,
+    VERDICTS,
+    Claim,
+    Context,
+    Figure,
+    Provider,
+    Section,
+    count_text,
+    iterations_text,
+    marked_verdict,
+    seeds_text,
+    slug,
+    verdict_kind,
+)
 from pimbot.analysis.sections import attacks, defenses, device, generic, reciprocators, stag_hunt
 from pimbot.analysis.tables import Table, html_table, markdown_lines, write_csv
 from pimbot.experiment import presets, store, sweep
@@ -85,10 +108,11 @@ def claims_table(sections: list[Section], index: dict) -> list[Claim]:
         done, planned = coverage.get(cid, (0, 0))
         claim = measured.get(cid)
         if claim is None or planned == 0 or done < planned:
-            note = f"{done}/{planned} runs finished" if planned else "no runs planned"
+            note = short = f"{done}/{planned} runs finished" if planned else "no runs planned"
             if claim is not None:
                 note += f"; so far: {claim.measured}"
-            out.append(Claim(cid, text, claim.rule if claim else "–", note, "not run"))
+            rule = claim.rule if claim else "–"
+            out.append(Claim(cid, text, rule, note, "not run", short))
             continue
         if quick:
             claim = dataclasses.replace(claim, verdict=f"{claim.verdict} (quick budget)")
@@ -96,7 +120,135 @@ def claims_table(sections: list[Section], index: dict) -> list[Claim]:
     return out
 
 
-def build(suite_dir: Path, out: Path) -> tuple[list[Section], list[Claim], dict]:
+PROVENANCE_FIELDS = (
+    ("pimbot version", "pimbot_version"),
+    ("git commit", "git_commit"),
+    ("JAX version", "jax_version"),
+    ("JAX backend", "jax_backend"),
+    ("devices", "devices"),
+)
+"""(row label, config.json key) of the provenance table: what every run records."""
+VERDICT_TEXT = {
+    "reproduced": "reproduced",
+    "not-reproduced": "not reproduced",
+    "inconclusive": "inconclusive",
+    "not-run": "not run (some of the claim's runs have not finished)",
+}
+
+
+@dataclasses.dataclass
+class Report:
+    index: dict
+    provenance: Section
+    claims: list[Claim]
+    sections: list[Section]
+
+    @property
+    def kind(self) -> str:
+        return "reproduction" if is_paper_suite(self.index) else "sweep"
+
+
+def generated_at() -> str:
+    """The report's date (UTC); SOURCE_DATE_EPOCH, where set, fixes it (reproducible builds)."""
+    epoch = os.environ.get("SOURCE_DATE_EPOCH")
+    when = (
+        datetime.datetime.fromtimestamp(int(epoch), datetime.UTC)
+        if epoch
+        else datetime.datetime.now(datetime.UTC)
+    )
+    return when.strftime("%Y-%m-%d %H:%M UTC")
+
+
+def _provenance_value(config: dict, key: str) -> str:
+    value = config.get(key)
+    if value is None:
+        return "not recorded"
+    return ", ".join(map(str, value)) if isinstance(value, list | tuple) else str(value)
+
+
+def provenance(table: run_table.RunTable, ctx: Context, when: str) -> Section:
+    """Versions, commit, backend and devices of the runs, and every group's budget, all read
+    from the run directories; one row per distinct value, with the runs that recorded it."""
+    records = table.records
+    rows: list[list] = []
+    for label, key in PROVENANCE_FIELDS:
+        values = Counter(_provenance_value(r.config, key) for r in records)
+        for value, count in sorted(values.items(), key=lambda kv: (-kv[1], kv[0])):
+            rows.append([label, value, f"{count}/{len(records)}"])
+    rows.append(["report generated", when, "–"])
+    rows.append(["report written by", f"pimbot {pimbot.__version__}", "–"])
+    environment = Table(["field", "value", "runs"], rows, "Software and devices", "", "provenance")
+    budget = []
+    for group in table.groups:
+        mine = table.group(group)
+        periods = count_text((int(r.identity.get("eval_period", 0)) for r in mine), "iterations")
+        budget.append(
+            [
+                group,
+                len(mine),
+                seeds_text(mine),
+                iterations_text(r.iterations for r in mine),
+                f"every {periods}",
+                ", ".join(sorted({r.learner for r in mine})),
+            ]
+        )
+    robot = [store.read_json(p) for p in sorted(ctx.suite_dir.glob("robot/*/summary.json"))]
+    if robot:
+        episodes = count_text((s["episodes_per_seed"] for s in robot), "episodes")
+        budget.append(
+            [
+                "robot",
+                len(robot),
+                count_text((len(s["seeds"]) for s in robot), "seeds"),
+                "–",
+                f"{episodes} per seed, physics and abstract",
+                "trained runs",
+            ]
+        )
+    profile = ctx.suite_dir / device.PROFILE_RUN / store.SUMMARY
+    if profile.exists():
+        summary = store.read_json(profile)
+        runs = [summary[c] for c in device.CONTROLLERS if c in summary]
+        seconds = sorted({float(r["config"]["duration_s"]) for r in runs})
+        budget.append(
+            [
+                "profile",
+                len(runs),
+                "–",
+                "–",
+                " / ".join(f"{s:g} s" for s in seconds) + " steady state per controller",
+                ", ".join(c for c in device.CONTROLLERS if c in summary),
+            ]
+        )
+    header = ["group", "jobs", "seeds", "iterations", "evaluation", "learners / controllers"]
+    budget_table = Table(
+        header,
+        budget,
+        "Budget per group",
+        "Seeds and iterations as the finished runs recorded them (summary.json and "
+        "config.json), not as a preset says.",
+        "provenance_budget",
+    )
+    jobs = ctx.index.get("jobs", [])
+    text = [
+        f"Read from the config.json of the {len(records)} finished training run(s) and from "
+        f"{sweep.INDEX} ({len(jobs)} jobs, suite {ctx.index.get('suite')!r}); generated "
+        f"{when}."
+    ]
+    return Section("Provenance", text=text, tables=[environment, budget_table])
+
+
+def clear_figures(out: Path) -> None:
+    """Removes the figures of an earlier report in `out`: a figure this one does not write
+    (its data gone) must not stay linked."""
+    folder = out / FIGURES
+    if folder.is_dir():
+        for path in folder.iterdir():
+            if path.is_file() and path.suffix in (".png", ".svg"):
+                path.unlink()
+
+
+def build(suite_dir: Path, out: Path) -> Report:
     index = sweep.read_index(suite_dir)
     if index is None:
         raise sweep.SweepError(
@@ -106,41 +258,47 @@ def build(suite_dir: Path, out: Path) -> tuple[list[Section], list[Claim], dict]
     table = run_table.load_table(suite_dir, index)
     ctx = Context(Path(suite_dir), Path(out), index)
     sections = [s for provide in PROVIDERS if (s := provide(table, ctx)) is not None]
-    return sections, claims_table(sections, index), index
+    for section in sections:  # a figure with no data was not written: nothing to link
+        section.figures = [f for f in section.figures if (ctx.out / f.path).exists()]
+    front = provenance(table, ctx, generated_at())
+    return Report(index, front, claims_table(sections, index), sections)
 
 
 def csv_names(sections: list[Section]) -> dict[int, str]:
     """File name (without .csv) of every table, by id(table): its own name or the section's."""
     names: dict[int, str] = {}
     for section in sections:
-        slug = re.sub(r"[^a-z0-9]+", "_", section.title.lower()).strip("_")
+        name = re.sub(r"[^a-z0-9]+", "_", section.title.lower()).strip("_")
         for k, table in enumerate(section.tables):
-            names[id(table)] = re.sub(r"[^A-Za-z0-9.-]+", "_", table.name or f"{slug}_{k}").strip(
+            names[id(table)] = re.sub(r"[^A-Za-z0-9.-]+", "_", table.name or f"{name}_{k}").strip(
                 "_"
             )
     return names
 
 
 def write_report(suite_dir: Path, out: Path) -> Path:
-    """Writes out/report.md, out/report.html, out/figures/ and out/tables/; returns `out`."""
+    """Writes out/report.md, out/report.html, out/figures/ (PNG and SVG) and out/tables/;
+    returns `out`."""
     out.mkdir(parents=True, exist_ok=True)
-    sections, claims, index = build(suite_dir, out)
+    clear_figures(out)
+    report = build(suite_dir, out)
     (out / TABLES).mkdir(exist_ok=True)
-    if claims:
-        write_csv(_claims_as_table(claims), out / TABLES / "claims.csv")
-    names = csv_names(sections)
-    for section in sections:
+    if report.claims:
+        write_csv(_claims_as_table(report.claims), out / TABLES / "claims.csv")
+    everything = [report.provenance, *report.sections]
+    names = csv_names(everything)
+    for section in everything:
         for table in section.tables:
             write_csv(table, out / TABLES / f"{names[id(table)]}.csv")
-    store.write_atomic(out / MARKDOWN, render_markdown(sections, claims, index).encode())
-    store.write_atomic(out / HTML, render_html(sections, claims, index, out).encode())
+    store.write_atomic(out / MARKDOWN, render_markdown(report).encode())
+    store.write_atomic(out / HTML, render_html(report, out).encode())
     return out
 
 
 # --- rendering -------------------------------------------------------------------------
 
 
-def _intro(index: dict) -> list[str]:
+def _intro(index: dict, budget: str = "") -> list[str]:
     jobs = index.get("jobs", [])
     finished = sum(j["status"] == "finished" for j in jobs)
     timed = [j["wall_s"] for j in jobs if "wall_s" in j]
@@ -150,13 +308,15 @@ def _intro(index: dict) -> list[str]:
         f"{sum(timed) / 60:.1f} min of job wall "
         "time summed; the others were found finished in the directory). Generated by "
         f"`pimbot report` from the run directories only; every table is also in {TABLES}/ "
-        "as CSV."
+        "as CSV, every figure in figures/ as PNG and SVG."
     ]
     if index.get("suite") == "quick":
         lines.append(
-            "This is the quick budget (3 seeds, a fifth of the iterations): it exercises every "
-            "setting, figure and claim, but learning claims are judged on runs far shorter than "
-            "the paper's. Run `pimbot reproduce` without --quick for the published budget."
+            f"This is the quick budget ({budget or 'see Provenance'}; "
+            f"{presets.QUICK.iteration_fraction * 100:g} % of the published iterations): it "
+            "exercises every setting, figure and claim, but learning claims are judged on runs "
+            "far shorter than the paper's. Run `pimbot reproduce` without --quick for the "
+            "published budget."
         )
     failed = [j["name"] for j in jobs if j["status"] == "failed"]
     if failed:
@@ -164,72 +324,236 @@ def _intro(index: dict) -> list[str]:
     return lines
 
 
-def _kind(index: dict) -> str:
-    return "reproduction" if is_paper_suite(index) else "sweep"
+def _budget(report: Report) -> str:
+    """The seed count of the training runs, from the provenance's budget table."""
+    budget = report.provenance.tables[1].rows
+    seeds = [row[2] for row in budget if row[2] != "–"]
+    return "; ".join(sorted(set(seeds))) + " per run" if seeds else ""
 
 
 def _claims_as_table(claims: list[Claim]) -> Table:
+    """The claims CSV: every number judged, the verdict as plain text."""
     return Table(
         ["claim", "published", "rule", "measured", "verdict"],
         [[c.id, c.claim, c.rule, c.measured, c.verdict] for c in claims],
     )
 
 
-def render_markdown(sections: list[Section], claims: list[Claim], index: dict) -> str:
-    lines = [f"# pimbot: {_kind(index)} report", ""]
-    lines += [p + "\n" for p in _intro(index)]
-    if claims:
-        lines += ["## Claims", ""] + markdown_lines(_claims_as_table(claims))
-    for section in sections:
-        lines += [f"## {section.title}", ""]
-        lines += [p + "\n" for p in section.text]
+def _details(claim: Claim) -> bool:
+    """Whether the claim's measured numbers go below the table (its summary is shorter)."""
+    return bool(claim.summary) and claim.summary != claim.measured
+
+
+def _claim_anchor(claim: Claim) -> str:
+    return f"claim-{slug(claim.id)}"
+
+
+def _verdict_legend() -> str:
+    return "Verdicts: " + " · ".join(
+        f"{VERDICTS[kind]} {text}" for kind, text in VERDICT_TEXT.items()
+    )
+
+
+class _Anchors:
+    """Unique anchors for headings (a second "Defenses" becomes "defenses-2")."""
+
+    def __init__(self):
+        self.seen: Counter = Counter()
+
+    def __call__(self, text: str) -> str:
+        base = slug(text)
+        self.seen[base] += 1
+        return base if self.seen[base] == 1 else f"{base}-{self.seen[base]}"
+
+
+def _figure_title(figure: Figure) -> str:
+    return figure.caption.split(" (")[0].split("; ")[0]
+
+
+def _outline(report: Report) -> list[tuple[int, str, str]]:
+    """(level, text, anchor) of every entry of the table of contents, in order."""
+    anchors = _Anchors()
+    entries = [(1, "Provenance", anchors("Provenance"))]
+    for table in report.provenance.tables:
+        entries.append((2, table.title, anchors(table.title)))
+    if report.claims:
+        entries.append((1, "Claims", anchors("Claims")))
+    for section in report.sections:
+        entries.append((1, section.title, anchors(section.title)))
+        entries += [(2, _figure_title(f), f.anchor) for f in section.figures]
+        entries += [(2, t.title, anchors(t.title)) for t in section.tables if t.title]
+    return entries
+
+
+def _headings(report: Report) -> dict[str, list[str]]:
+    """Anchor of each heading text, in document order (repeated titles get their own)."""
+    out: dict[str, list[str]] = {}
+    for level, text, anchor in _outline(report):
+        if not (level == 2 and anchor.startswith("fig")):
+            out.setdefault(text, []).append(anchor)
+    return out
+
+
+def render_markdown(report: Report) -> str:
+    anchors = _headings(report)
+
+    def anchor(text: str) -> str:
+        return f'<a id="{anchors[text].pop(0)}"></a>'
+
+    lines = [f"# pimbot: {report.kind} report", ""]
+    lines += [p + "\n" for p in _intro(report.index, budget=_budget(report))]
+    lines += ["**Contents**", ""]
+    for level, text, target in _outline(report):
+        lines.append(f"{'  ' * (level - 1)}- [{text}](#{target})")
+    lines.append("")
+
+    def section_lines(section: Section) -> list[str]:
+        out = [anchor(section.title), f"## {section.title}", ""]
+        out += [p + "\n" for p in section.text]
         for figure in section.figures:
-            link = f"![{figure.caption}]({figure.path.as_posix()})"
-            lines += [link, "", f"*{figure.caption}*", ""]
+            out += [f'<a id="{figure.anchor}"></a>', ""]
+            out += [f"![{figure.caption}]({figure.path.as_posix()})", ""]
+            out += [f"*{figure.caption}* (vector: [SVG]({figure.svg.as_posix()}))", ""]
         for table in section.tables:
-            lines += markdown_lines(table)
+            if table.title:
+                out.append(anchor(table.title))
+            out += markdown_lines(table)
+        return out
+
+    lines += section_lines(report.provenance)
+    if report.claims:
+        lines += [anchor("Claims"), "## Claims", ""]
+        rows = []
+        for c in report.claims:
+            measured = c.summary if _details(c) else c.measured
+            if _details(c):
+                measured += f" ([details](#{_claim_anchor(c)}))"
+            rows.append([c.id, c.claim, c.rule, measured, f"**{marked_verdict(c.verdict)}**"])
+        header = ["claim", "published", "rule", "measured", "verdict"]
+        lines += markdown_lines(Table(header, rows))
+        lines += [_verdict_legend(), ""]
+        details = [c for c in report.claims if _details(c)]
+        if details:
+            lines += ["Measured, in full:", ""]
+            lines += [f'- <a id="{_claim_anchor(c)}"></a>**{c.id}**: {c.measured}' for c in details]
+            lines.append("")
+    for section in report.sections:
+        lines += section_lines(section)
     return "\n".join(lines)
 
 
 CSS = """
 body { font-family: system-ui, sans-serif; max-width: 1200px; margin: 2em auto; padding: 0 1em;
-       color: #222; }
+       color: #222; line-height: 1.45; }
+h2 { border-bottom: 1px solid #ddd; padding-bottom: 0.2em; margin-top: 2em; }
 table { border-collapse: collapse; margin: 1em 0; font-size: 0.85em; }
 th, td { border: 1px solid #ccc; padding: 0.3em 0.5em; vertical-align: top; text-align: left; }
 th { background: #f3f3f3; }
-td.reproduced { background: #e6f4e6; } td.not-reproduced { background: #fbe9e9; }
-td.not-run { background: #f0f0f0; color: #777; }
+nav.toc { background: #f8f8f8; border: 1px solid #ddd; padding: 0.6em 1.2em; font-size: 0.9em; }
+nav.toc ul { margin: 0.2em 0; padding-left: 1.2em; } nav.toc > ul { columns: 2; }
+nav.toc ul ul { font-size: 0.92em; color: #555; }
+table.claims td.rule { font-size: 0.9em; color: #555; max-width: 22em; }
+table.claims td.measured { max-width: 24em; }
+td.verdict { font-weight: 600; min-width: 11em; }
+td.verdict .mark { display: inline-block; width: 1.2em; text-align: center; }
+.reproduced { background: #e3f4e6; color: #1b5e20; border-left: 5px solid #2e7d32; }
+.not-reproduced { background: #fde8e8; color: #a31515; border-left: 5px solid #c62828; }
+.inconclusive { background: #fff3dc; color: #7a4f00; border-left: 5px dashed #e09b00; }
+.not-run { background: #f0f0f0; color: #666; font-style: italic; border-left: 5px dotted #999; }
+p.legend { font-size: 0.85em; } p.legend span { margin-right: 0.8em; padding: 0.15em 0.5em; }
+ul.details { font-size: 0.85em; color: #333; } ul.details li { margin: 0.3em 0; }
 figure { margin: 1.5em 0; } figure img { max-width: 100%; border: 1px solid #ddd; }
 figcaption { font-size: 0.9em; color: #555; }
 """
 
 
-def _verdict_class(column: int, text: str) -> str | None:
-    if column != 4:
-        return None
-    if text.startswith("not run"):
-        return "not-run"
-    return "not-reproduced" if text.startswith("not reproduced") else "reproduced"
+def _verdict_cell(verdict: str) -> str:
+    kind = verdict_kind(verdict)
+    return (
+        f"<td class='verdict {kind}'><span class='mark'>{VERDICTS[kind]}</span> "
+        f"{html.escape(verdict)}</td>"
+    )
 
 
-def render_html(sections: list[Section], claims: list[Claim], index: dict, out: Path) -> str:
-    parts = [
-        "<!DOCTYPE html><html><head><meta charset='utf-8'><title>pimbot report</title>",
-        f"<style>{CSS}</style></head><body><h1>pimbot: {_kind(index)} report</h1>",
-    ]
-    parts += [f"<p>{html.escape(p)}</p>" for p in _intro(index)]
-    if claims:
-        parts += ["<h2>Claims</h2>", html_table(_claims_as_table(claims), _verdict_class)]
-    for section in sections:
-        parts.append(f"<h2>{html.escape(section.title)}</h2>")
-        parts += [f"<p>{html.escape(p)}</p>" for p in section.text]
+def _claims_html(claims: list[Claim]) -> str:
+    head = "".join(f"<th>{h}</th>" for h in ("claim", "published", "rule", "measured", "verdict"))
+    rows = []
+    for c in claims:
+        measured = html.escape(c.summary if _details(c) else c.measured)
+        if _details(c):
+            measured += f" <a href='#{_claim_anchor(c)}'>details</a>"
+        rows.append(
+            f"<tr><td>{html.escape(c.id)}</td><td>{html.escape(c.claim)}</td>"
+            f"<td class='rule'>{html.escape(c.rule)}</td><td class='measured'>{measured}</td>"
+            f"{_verdict_cell(c.verdict)}</tr>"
+        )
+    legend = "".join(
+        f"<span class='{kind}'>{VERDICTS[kind]} {html.escape(text)}</span>"
+        for kind, text in VERDICT_TEXT.items()
+    )
+    parts = [f"<table class='claims'><tr>{head}</tr>{''.join(rows)}</table>"]
+    parts.append(f"<p class='legend'>Verdicts: {legend}</p>")
+    details = [c for c in claims if _details(c)]
+    if details:
+        items = "".join(
+            f"<li id='{_claim_anchor(c)}'><b>{html.escape(c.id)}</b>: {html.escape(c.measured)}"
+            "</li>"
+            for c in details
+        )
+        parts.append(f"<p>Measured, in full:</p><ul class='details'>{items}</ul>")
+    return "".join(parts)
+
+
+def _toc_html(report: Report) -> str:
+    parts, level = ["<nav class='toc'><b>Contents</b><ul>"], 1
+    for depth, text, anchor in _outline(report):
+        if depth > level:
+            parts.append("<ul>")
+        elif depth < level:
+            parts.append("</ul></li>")
+        elif parts[-1] != "<nav class='toc'><b>Contents</b><ul>":
+            parts.append("</li>")
+        level = depth
+        parts.append(f"<li><a href='#{anchor}'>{html.escape(text)}</a>")
+    parts.append("</li></ul></li>" if level > 1 else "</li>")
+    parts.append("</ul></nav>")
+    return "".join(parts)
+
+
+def render_html(report: Report, out: Path) -> str:
+    anchors = _headings(report)
+
+    def titled(table: Table, cell_class=None) -> str:
+        rendered = html_table(table, cell_class)
+        if table.title:
+            target = anchors[table.title].pop(0)
+            rendered = rendered.replace("<h3>", f"<h3 id='{target}'>", 1)
+        return rendered
+
+    def section_html(section: Section) -> list[str]:
+        out_parts = [f"<h2 id='{anchors[section.title].pop(0)}'>{html.escape(section.title)}</h2>"]
+        out_parts += [f"<p>{html.escape(p)}</p>" for p in section.text]
         for figure in section.figures:
             data = base64.b64encode((out / figure.path).read_bytes()).decode()
-            parts.append(
-                f"<figure><img alt='{html.escape(figure.caption)}' "
+            out_parts.append(
+                f"<figure id='{figure.anchor}'><img alt='{html.escape(figure.caption)}' "
                 f"src='data:image/png;base64,{data}'><figcaption>"
-                f"{html.escape(figure.caption)}</figcaption></figure>"
+                f"{html.escape(figure.caption)} (vector: <a href='{figure.svg.as_posix()}'>"
+                "SVG</a>)</figcaption></figure>"
             )
-        parts += [html_table(t) for t in section.tables]
+        out_parts += [titled(t) for t in section.tables]
+        return out_parts
+
+    parts = [
+        "<!DOCTYPE html><html><head><meta charset='utf-8'><title>pimbot report</title>",
+        f"<style>{CSS}</style></head><body><h1>pimbot: {report.kind} report</h1>",
+    ]
+    parts += [f"<p>{html.escape(p)}</p>" for p in _intro(report.index, budget=_budget(report))]
+    parts.append(_toc_html(report))
+    parts += section_html(report.provenance)
+    if report.claims:
+        parts += [f"<h2 id='{anchors['Claims'].pop(0)}'>Claims</h2>", _claims_html(report.claims)]
+    for section in report.sections:
+        parts += section_html(section)
     parts.append("</body></html>")
     return "\n".join(parts)

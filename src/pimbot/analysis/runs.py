@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import re
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -103,13 +104,9 @@ class RunTable:
         return sorted({r.group for r in self.records})
 
     @property
-    def colors(self) -> dict[str, Any]:
-        """A stable colour per condition: assigned along the sorted conditions, clean first."""
-        import matplotlib
-
-        conditions = sorted({r.condition for r in self.records} | {CLEAN}, key=condition_key)
-        cmap = matplotlib.colormaps["tab10" if len(conditions) <= 10 else "tab20"]
-        return {c: cmap.colors[k % len(cmap.colors)] for k, c in enumerate(conditions)}
+    def colors(self) -> dict[str, str]:
+        """The colour of every condition of the table (`condition_colors`), clean first."""
+        return condition_colors(r.condition for r in self.records)
 
     def clean_for(self, record: RunRecord) -> RunRecord | None:
         """The clean run of `record`'s group and cell (same env, learner, hparams, defenses)."""
@@ -186,6 +183,31 @@ def defense_label(defenses: list | tuple) -> str:
 
 def hparams_label(hparams: list | tuple) -> str:
     return ", ".join(f"{k}={_value(v)}" for k, v in sorted(hparams))
+
+
+PALETTE = (
+    "#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#bcbd22",
+    "#17becf", "#393b79", "#637939", "#8c6d31", "#843c39", "#7b4173", "#3182bd", "#e6550d",
+    "#31a354", "#756bb1", "#636363", "#ad494a",
+)  # fmt: skip
+"""Condition colours: matplotlib's tab10 without its grey (grey is the random-team
+reference), then darker tab20b/tab20c tones; the first seven are the paper's conditions."""
+
+
+def condition_colors(conditions: Iterable[str]) -> dict[str, str]:
+    """The one colour mapping of every figure: condition -> hex colour, clean first.
+
+    A paper condition always gets the colour of its place in the paper's order (so a
+    condition keeps its colour across figures, sections and reports); any other
+    condition takes the next free colour in `condition_key` order.
+    """
+    wanted = sorted(set(conditions) | {CLEAN}, key=condition_key)
+    taken = {c: CONDITION_ORDER.index(c) for c in wanted if c in CONDITION_ORDER}
+    free = (k for k in range(len(PALETTE) * 64) if k not in taken.values())
+    for c in wanted:
+        if c not in taken:
+            taken[c] = next(free)
+    return {c: PALETTE[taken[c] % len(PALETTE)] for c in wanted}
 
 
 def condition_key(condition: str) -> tuple[int, str]:

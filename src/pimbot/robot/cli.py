@@ -166,16 +166,17 @@ def _render(args) -> int:
     cfg = evaluate.physics_config(loaded.resolved, **overrides)
     result = evaluate.physics_episodes(loaded, seed_index, episode + 1, cfg)[episode]
     title = f"{evaluate.run_label(loaded.resolved)}, seed {loaded.seeds[seed_index]}"
-    used = render.render_episode(result, out, renderer=renderer, title=title)
+    adversary = render.run_adversary(run_dir)
+    used = render.render_episode(result, out, renderer=renderer, title=title, adversary=adversary)
     outcome = "success" if result.success else "no success"
     print(f"episode: {result.steps} decision steps, {outcome}; actions {result.actions.tolist()}")
     print(f"wrote {out} ({used} renderer)")
     if args.frame:
         last = render.frame_indices(result, 10, 4.0)[-1:]
         frames = (
-            render.mujoco_frames(result, last)
+            render.mujoco_frames(result, last, adversary=adversary, title=title)
             if used == "mujoco"
-            else render.matplotlib_frames(result, last, title=title)
+            else render.matplotlib_frames(result, last, title=title, adversary=adversary)
         )
         render.write_png(frames[0], Path(args.frame))
         print(f"wrote {args.frame}")

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pimbot.robot.episode import EpisodeResult
+from pimbot.robot.episode import GATE_OPEN_FRACTION, EpisodeResult
 from pimbot.robot.world import (
     DOOR_GAP,
     GATE_TRAVEL,
@@ -29,7 +29,18 @@ from pimbot.robot.world import (
 )
 
 FORMATS = (".gif", ".mp4")
-ROBOT_COLOURS = ("#e6194b", "#3cb44b", "#4363d8", "#f58231", "#911eb4", "#42d4f4")
+ROBOT_COLOURS = ("#4363d8", "#3cb44b", "#f58231", "#911eb4", "#42d4f4", "#469990")
+"""Honest robots; none is red, which marks the adversary."""
+ADVERSARY_COLOUR = "#d00000"
+ZONE_ROLES = {
+    "lever": "lever zone: holds the door open",
+    "start": "start zone",
+    "door": "door zone: exit, +10 when open",
+}
+"""What each zone of `world.ZONE_NAMES` is, for the legend of every frame."""
+OPEN_COLOUR, CLOSED_COLOUR = "#1b7a2e", "#b00020"
+STRIP = 84
+"""Pixels of the legend and status strip below a MuJoCo frame."""
 
 
 def check_output_path(out: str | Path) -> Path:
@@ -44,6 +55,22 @@ def check_output_path(out: str | Path) -> Path:
     return path
 
 
+def adversary_of(config: dict) -> int | None:
+    """The adversary's agent index of a run's config.json: its attack parameter `adversary`
+    (agent 0 where the attack has none); None for a clean run."""
+    identity = config.get("identity", {})
+    if not identity.get("attack"):
+        return None
+    return int(identity.get("attack_params", {}).get("adversary", 0))
+
+
+def run_adversary(run_dir: str | Path) -> int | None:
+    """`adversary_of` the config.json of a run directory."""
+    from pimbot.experiment import store
+
+    return adversary_of(store.read_json(Path(run_dir) / store.CONFIG))
+
+
 def frame_indices(result: EpisodeResult, fps: int, speedup: float) -> np.ndarray:
     """Trace ticks to show: one frame per `speedup / fps` simulated seconds."""
     times = result.trace["time"]
@@ -51,13 +78,67 @@ def frame_indices(result: EpisodeResult, fps: int, speedup: float) -> np.ndarray
     return np.unique(np.clip(np.searchsorted(times, wanted), 0, len(times) - 1))
 
 
-def mujoco_frames(result: EpisodeResult, indices: np.ndarray, size=(640, 480)) -> list[np.ndarray]:
+def decision_at(result: EpisodeResult, k: int) -> int:
+    """The decision step (1-based) trace tick `k` belongs to: decision t covers the
+    simulated time from the end of decision t − 1 to the end of its settling."""
+    ends = np.cumsum(result.decision_seconds)  # the episode starts at simulated time 0
+    if ends.size == 0:
+        return 0
+    return int(min(np.searchsorted(ends, result.trace["time"][k] - 1e-9) + 1, ends.size))
+
+
+def robot_colour(i: int, adversary: int | None) -> str:
+    return ADVERSARY_COLOUR if i == adversary else ROBOT_COLOURS[i % len(ROBOT_COLOURS)]
+
+
+def robot_label(result: EpisodeResult, i: int, decision: int, adversary: int | None) -> str:
+    """ "1 → door", "0 adversary → start": the robot id and the zone it was sent to."""
+    name = f"{i} adversary" if i == adversary else str(i)
+    if 1 <= decision <= result.steps:
+        name += f" → {ZONE_NAMES[int(result.actions[decision - 1][i])]}"
+    return name
+
+
+def status(result: EpisodeResult, k: int) -> tuple[str, bool]:
+    """(the status line of tick `k`, whether the door is open)."""
+    opening = float(result.trace["gate"][k])
+    is_open = opening >= GATE_OPEN_FRACTION
+    state = "OPEN" if is_open else "CLOSED"
+    time = result.trace["time"][k]
+    line = (
+        f"decision {decision_at(result, k)} of {result.steps}   t = {time:5.1f} s   "
+        f"door {state} (gate {max(0, round(opening * 100))} % open)"
+    )
+    return line, is_open
+
+
+def _hex_rgb(colour) -> tuple[int, int, int]:
+    from matplotlib.colors import to_rgba
+
+    r, g, b, a = to_rgba(colour)
+    # Zone colours are translucent: shown as they look over the white floor.
+    return tuple(int(round(255 * (a * c + (1 - a)))) for c in (r, g, b))  # type: ignore[return-value]
+
+
+def mujoco_frames(
+    result: EpisodeResult,
+    indices: np.ndarray,
+    size=(640, 480),
+    adversary: int | None = None,
+    title: str = "",
+    annotate: bool = True,
+) -> list[np.ndarray]:
     """Top-down RGB frames [H, W, 3] rendered by MuJoCo from the recorded trace.
 
-    Needs a working MUJOCO_GL backend (set before mujoco was imported).
+    With `annotate`, the scene takes the top `H - STRIP` pixels and a strip below it
+    holds the zone legend, the decision counter and the door state; every robot gets a
+    ring in its colour and its id (the adversary red, labelled). Needs a working MUJOCO_GL
+    backend (set before mujoco was imported).
     """
     import mujoco
 
+    width, height = size
+    scene_h = height - STRIP if annotate else height
     world = result.world
     model, data = world.model, mujoco.MjData(world.model)
     layout = world.layout
@@ -66,10 +147,10 @@ def mujoco_frames(result: EpisodeResult, indices: np.ndarray, size=(640, 480)) -
     camera.lookat[:] = (0.0, 0.0, 0.0)
     camera.azimuth, camera.elevation = 90.0, -90.0
     fovy = math.radians(model.vis.global_.fovy)
-    span = max(layout.height + 0.4, (layout.width + 0.4) * size[1] / size[0])
+    span = max(layout.height + 0.4, (layout.width + 0.4) * scene_h / width)
     camera.distance = 0.5 * span / math.tan(fovy / 2)
     frames = []
-    renderer = mujoco.Renderer(model, size[1], size[0])
+    renderer = mujoco.Renderer(model, scene_h, width)
     try:
         for k in indices:
             for i, (x, y, theta) in enumerate(result.trace["poses"][k]):
@@ -78,29 +159,112 @@ def mujoco_frames(result: EpisodeResult, indices: np.ndarray, size=(640, 480)) -
             data.qpos[world.gate_qpos] = result.trace["gate"][k] * world.gate_open_target
             mujoco.mj_forward(model, data)
             renderer.update_scene(data, camera)
-            frames.append(renderer.render().copy())
+            frame = renderer.render().copy()
+            if annotate:
+                frame = _annotate(frame, result, int(k), height, scene_h / span, adversary, title)
+            frames.append(frame)
     finally:
         renderer.close()
     return frames
 
 
+def _font(size: int, weight: str = "normal"):
+    from matplotlib import font_manager
+    from PIL import ImageFont
+
+    props = font_manager.FontProperties(family="DejaVu Sans", weight=weight)
+    return ImageFont.truetype(font_manager.findfont(props), size)
+
+
+def _annotate(frame, result, k, height, scale, adversary, title) -> np.ndarray:
+    """The MuJoCo scene with rings and ids on the robots, over a legend and status strip."""
+    from PIL import Image, ImageDraw
+
+    scene_h, width = frame.shape[:2]
+    canvas = Image.new("RGB", (width, height), "white")
+    canvas.paste(Image.fromarray(frame), (0, 0))
+    draw = ImageDraw.Draw(canvas)
+    small, bold = _font(11), _font(12, "bold")
+    decision = decision_at(result, k)
+
+    def pixel(x: float, y: float) -> tuple[float, float]:
+        return width / 2 + x * scale, scene_h / 2 - y * scale
+
+    layout = result.world.layout
+    for name, (cx, cy) in zip(ZONE_NAMES, layout.zone_centres, strict=True):
+        draw.text(pixel(cx, cy + layout.zone_half), name, fill="black", font=small, anchor="md")
+    radius = ROBOT_RADIUS * scale
+    for i, (x, y, _) in enumerate(result.trace["poses"][k]):
+        px, py = pixel(x, y)
+        colour = robot_colour(i, adversary)
+        ring = radius + (6 if i == adversary else 3)
+        draw.ellipse((px - ring, py - ring, px + ring, py + ring), outline=colour, width=4)
+        if i == adversary:
+            draw.ellipse((px - ring - 3, py - ring - 3, px + ring + 3, py + ring + 3),
+                         outline="black", width=1)  # fmt: skip
+        label = robot_label(result, i, decision, adversary)
+        # Above the robot for even ids, below for odd: neighbours in a zone do not overlap.
+        anchor, ty = ("md", py - ring - 4) if i % 2 == 0 else ("ma", py + ring + 4)
+        box = draw.textbbox((px, ty), label, font=bold, anchor=anchor)
+        draw.rectangle((box[0] - 2, box[1] - 1, box[2] + 2, box[3] + 1), fill="white")
+        draw.text((px, ty), label, fill=colour, font=bold, anchor=anchor)
+    line, is_open = status(result, k)
+    top = scene_h + 6
+    if title:
+        draw.text((8, top), title, fill="black", font=small)
+        top += 16
+    draw.text((8, top), line, fill=OPEN_COLOUR if is_open else CLOSED_COLOUR, font=bold)
+    top += 20
+    x = 8
+    for name, colour in zip(ZONE_NAMES, ZONE_COLOURS, strict=True):
+        draw.rectangle((x, top + 1, x + 12, top + 13), fill=_hex_rgb(colour), outline="black")
+        text = ZONE_ROLES.get(name, name)
+        draw.text((x + 16, top), text, fill="black", font=small)
+        x += 16 + draw.textlength(text, font=small) + 14
+        if x > width - 150:
+            x, top = 8, top + 16
+    if adversary is not None:
+        draw.text((x, top), f"red ring: robot {adversary}, the adversary", fill=ADVERSARY_COLOUR,
+                  font=small)  # fmt: skip
+    return np.asarray(canvas)
+
+
 def matplotlib_frames(
-    result: EpisodeResult, indices: np.ndarray, size=(640, 480), title: str = ""
+    result: EpisodeResult,
+    indices: np.ndarray,
+    size=(640, 480),
+    title: str = "",
+    adversary: int | None = None,
 ) -> list[np.ndarray]:
-    """Top-down RGB frames drawn with matplotlib (Agg) from the recorded trace."""
+    """Top-down RGB frames drawn with matplotlib (Agg) from the recorded trace: zones with
+    a legend of what each is, robots with their ids and the zone each was sent to (the
+    adversary, where there is one, red and labelled), the door state and the decision
+    counter."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.patches as patches
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
 
     layout = result.world.layout
     w, h = layout.width, layout.height
     dpi = 100
-    fig, ax = plt.subplots(figsize=(size[0] / dpi, size[1] / dpi), dpi=dpi)
-    fig.subplots_adjust(0.02, 0.02, 0.98, 0.92)
+    fig = plt.figure(figsize=(size[0] / dpi, size[1] / dpi), dpi=dpi)
+    ax = fig.add_axes((0.02, 0.16, 0.96, 0.74))
+    handles = [
+        patches.Patch(color=colour, label=ZONE_ROLES.get(name, name))
+        for name, colour in zip(ZONE_NAMES, ZONE_COLOURS, strict=True)
+    ]
+    handles.append(patches.Patch(color="#8c4d26", label="gate (slides open)"))
+    for i in range(result.world.num_robots):
+        label = f"robot {i}" + (" (adversary)" if i == adversary else "")
+        handles.append(
+            Line2D([], [], ls="", marker="o", ms=8, mfc=robot_colour(i, adversary),
+                   mec="black" if i == adversary else "none", mew=2, label=label)
+        )  # fmt: skip
+    fig.legend(handles=handles, loc="lower center", ncol=3, fontsize=7, frameon=False)
     frames = []
-    times = result.trace["time"]
     for k in indices:
         ax.clear()
         ax.set_xlim(-w / 2 - 0.2, w / 2 + 0.2)
@@ -117,6 +281,8 @@ def matplotlib_frames(
                 patches.Rectangle((cx - half, cy - half), 2 * half, 2 * half, color=colour)
             )
             ax.text(cx, cy + half + 0.05, name, ha="center", fontsize=9)
+        line, is_open = status(result, k)
+        state = OPEN_COLOUR if is_open else CLOSED_COLOUR
         # The doorway, and the gate slid along the wall by its current opening.
         ax.plot(
             [w / 2, w / 2],
@@ -133,17 +299,38 @@ def matplotlib_frames(
                 color="#8c4d26",
             )
         )
+        ax.text(
+            w / 2 + 0.1, layout.door_y, "open" if is_open else "closed", color=state,
+            ha="center", va="center", fontsize=8, fontweight="bold", rotation=90,
+        )  # fmt: skip
         upto = slice(0, k + 1)
+        decision = decision_at(result, k)
         for i, (x, y, theta) in enumerate(result.trace["poses"][k]):
-            colour = ROBOT_COLOURS[i % len(ROBOT_COLOURS)]
+            colour = robot_colour(i, adversary)
+            adv = i == adversary
             path = result.trace["poses"][upto, i]
             ax.plot(path[:, 0], path[:, 1], color=colour, lw=1, alpha=0.6)
-            ax.add_patch(patches.Circle((x, y), ROBOT_RADIUS, color=colour, alpha=0.9))
+            ax.add_patch(
+                patches.Circle(
+                    (x, y), ROBOT_RADIUS, fc=colour, alpha=0.95,
+                    ec="black" if adv else "white", lw=2.5 if adv else 1,
+                )
+            )  # fmt: skip
             ax.plot([x, x + 0.12 * math.cos(theta)], [y, y + 0.12 * math.sin(theta)], "k-", lw=2)
             ax.text(x, y, str(i), ha="center", va="center", color="white", fontsize=8)
-        ax.set_title(
-            f"{title}  t = {times[k]:5.1f} s  gate {result.trace['gate'][k]:.0%}", fontsize=10
-        )
+            label = robot_label(result, i, decision, adversary)
+            up = 1 if i % 2 == 0 else -1  # neighbours in a zone: labels above and below
+            ax.text(
+                x, y + up * (ROBOT_RADIUS + 0.04), label, color=colour, fontsize=8,
+                ha="center", va="bottom" if up > 0 else "top",
+                fontweight="bold" if adv else "normal",
+                bbox={"fc": "white", "ec": "none", "alpha": 0.75, "pad": 1},
+            )  # fmt: skip
+        fig.texts.clear()
+        if title:
+            fig.text(0.5, 0.965, title, ha="center", va="center", fontsize=9)
+        fig.text(0.5, 0.925, line, ha="center", va="center", fontsize=9, color=state,
+                 fontweight="bold")  # fmt: skip
         fig.canvas.draw()
         frames.append(np.asarray(fig.canvas.buffer_rgba())[..., :3].copy())
     plt.close(fig)
@@ -186,6 +373,7 @@ def render_episode(
     fps: int = 10,
     speedup: float = 4.0,
     title: str = "",
+    adversary: int | None = None,
 ) -> str:
     """Writes a top-down video of `result`; returns the renderer used ("mujoco" or
     "matplotlib").
@@ -193,14 +381,16 @@ def render_episode(
     Args:
         renderer: "mujoco", "matplotlib", or "auto" (MuJoCo when OpenGL works).
         speedup: simulated seconds per second of video.
+        adversary: the attacked run's adversary index (`run_adversary`), marked on every
+            frame; None for a clean run.
     """
     path = check_output_path(out)
     indices = frame_indices(result, fps, speedup)
     if renderer == "auto":
         renderer = "mujoco" if os.environ.get("MUJOCO_GL") else "matplotlib"
     if renderer == "mujoco":
-        frames = mujoco_frames(result, indices)
+        frames = mujoco_frames(result, indices, adversary=adversary, title=title)
     else:
-        frames = matplotlib_frames(result, indices, title=title)
+        frames = matplotlib_frames(result, indices, title=title, adversary=adversary)
     write_video(frames, path, fps)
     return renderer

@@ -6,7 +6,15 @@ import numpy as np
 
 from pimbot.analysis import plots
 from pimbot.analysis.curves import columns, load_curve
-from pimbot.analysis.document import Claim, Context, Section, verdict
+from pimbot.analysis.document import (
+    Claim,
+    Context,
+    Section,
+    count_text,
+    final_window_text,
+    seeds_text,
+    verdict,
+)
 from pimbot.analysis.runs import CLEAN, RunRecord, RunTable, condition_key, natural_key
 from pimbot.analysis.tables import Table, difference, estimate, fmt
 
@@ -15,6 +23,10 @@ CLAIMS_LEARNER = "lio"
 """C1–C5 are about LIO; the group's runs of other learners go to the generic section."""
 ADMO_COLUMN = "admo/alpha_1"
 """Runs that log it are ADMO runs (Fig. 5)."""
+SHARED_UPDATES = "original_shared_incentive_updates"
+AGENT_COLOURS = ("#4d4d4d", "#1b9e77", "#7570b3", "#e6ab02", "#66a61e", "#a6761d", "#666666")
+"""Per-agent lines of Fig. 2 (agents, not conditions: a palette of its own)."""
+ADVERSARY_COLOUR = "#d62728"
 
 
 def section(table: RunTable, ctx: Context) -> Section | None:
@@ -27,51 +39,73 @@ def section(table: RunTable, ctx: Context) -> Section | None:
     envs = sorted({r.env for r in runs}, key=natural_key)
     teams = [e for e in envs if any(r.env == e and has_return_ratio(r) for r in runs)]
     others = [e for e in envs if e not in teams]
-    out = Section(
-        "Attacks on LIO (C1–C5)",
-        text=[
-            "Final = mean of the last 10 evaluation points per seed, [95 % bootstrap CI over "
-            "seeds]; Δ = attacked − clean with a bootstrap CI. Adversary = agent 0; margin = "
-            "its env return minus the mean of the others'. N ≥ 3 runs use the original shared "
-            "incentive updates."
-        ],
-    )
+    out = Section("Attacks on LIO (C1–C5)", text=[intro(runs)])
     panels = plots.condition_panels(runs, teams, colors)
+    seeds = seeds_text(runs)
     if teams:
         path, figure = ctx.figure(
-            "fig1_success.png", "Fig. 1: success vs iterations per ER config, clean and attacks"
+            "fig1_success.png",
+            f"Fig. 1: success vs iterations per ER config, clean and attacks (mean over {seeds}, "
+            "95 % bootstrap band; dotted: a random team)",
         )
-        plots.curve_panels(panels, "eval/success", "success", path)
-        out.figures.append(figure)
+        if plots.curve_panels(panels, "eval/success", "success", path):
+            out.figures.append(figure)
         path, figure = ctx.figure(
-            "fig2_agent_returns.png", "Fig. 2: per-agent env returns (adversary in red)"
+            "fig2_agent_returns.png",
+            f"Fig. 2: per-agent env returns (mean over {seeds}); the adversary's curve is the "
+            "thick red one",
         )
-        fig_agent_returns(runs, teams, path)
-        out.figures.append(figure)
-        path, figure = ctx.figure("fig3_steps.png", "Fig. 3: steps per episode")
-        plots.curve_panels(panels, "eval/steps", "steps per episode", path)
-        out.figures.append(figure)
+        if fig_agent_returns(runs, teams, path):
+            out.figures.append(figure)
+        path, figure = ctx.figure(
+            "fig3_steps.png", f"Fig. 3: steps per episode (mean over {seeds})"
+        )
+        if plots.curve_panels(panels, "eval/steps", "steps per episode", path):
+            out.figures.append(figure)
     if teams and any(r.condition == "self_centered" for r in runs):
         path, figure = ctx.figure(
-            "fig4_convergence.png", "Fig. 4: convergence, clean vs self-centered"
+            "fig4_convergence.png",
+            "Fig. 4: convergence per seed, clean vs self-centered",
         )
-        fig_convergence(runs, teams, colors, path)
-        out.figures.append(figure)
+        if fig_convergence(runs, teams, colors, path):
+            out.figures.append(figure)
     admo = [r for r in runs if ADMO_COLUMN in columns(r.path)]
-    if teams and admo:
+    admo_envs = [e for e in teams if any(r.env == e for r in admo)]
+    if admo_envs:
         path, figure = ctx.figure(
-            "fig5_admo.png", "Fig. 5: ADMO vs LIO: success, margin, α1, c1/c2"
+            "fig5_admo.png",
+            f"Fig. 5: ADMO vs LIO: success, margin, α1, c1/c2 (mean over {seeds_text(admo)})",
         )
-        fig_admo(runs, admo, teams, colors, path)
+        fig_admo(runs, admo, admo_envs, colors, path)
         out.figures.append(figure)
     if others:
-        path, figure = ctx.figure("fig1b_ipd_cooperation.png", "Fig. 1b: IPD cooperation rate")
+        path, figure = ctx.figure(
+            "fig1b_ipd_cooperation.png", f"Fig. 1b: IPD cooperation rate (mean over {seeds})"
+        )
         panels = plots.condition_panels(runs, others, colors)
-        plots.curve_panels(panels, "eval/success", "cooperation rate", path)
-        out.figures.append(figure)
+        if plots.curve_panels(panels, "eval/success", "cooperation rate", path):
+            out.figures.append(figure)
     out.tables = [convergence_table(runs), results_table(rows)]
     out.claims = claims(rows)
     return out
+
+
+def intro(runs: list[RunRecord]) -> str:
+    """What the numbers are, with the counts read from the runs."""
+    attacked = sorted({r.adversary for r in runs if r.attack is not None})
+    adversary = ", ".join(f"agent {a}" for a in attacked) or "none (no attacked run)"
+    shared = sorted(
+        {r.env for r in runs if r.identity["learner_config"].get(SHARED_UPDATES)}, key=natural_key
+    )
+    text = (
+        f"Final = mean of the last {final_window_text(runs)} per seed, [95 % bootstrap CI "
+        f"over {seeds_text(runs)}]; Δ = attacked − clean with a bootstrap CI. Adversary = "
+        f"{adversary} (the runs' attack parameters); margin = its env return minus the mean "
+        "of the others'."
+    )
+    if shared:
+        text += f" {', '.join(shared)} runs use the original shared incentive updates."
+    return text
 
 
 def has_return_ratio(run: RunRecord) -> bool:
@@ -142,20 +176,29 @@ def results_table(rows: list[dict]) -> Table:
     return Table(header, cells, name="attacks")
 
 
+def _seeds_of(rows: list[dict], envs, conditions) -> str:
+    counts = [r["seeds"] for r in rows if r["env"] in envs and r["condition"] in conditions]
+    return count_text(counts, "seeds")
+
+
 def claims(rows: list[dict]) -> list[Claim]:
-    """C1–C5, judged on the rows."""
+    """C1–C5, judged on the rows; each with a short summary for the claims table."""
     by = {(r["env"], r["condition"]): r for r in rows}
     out = []
     # C1
-    parts, ok = [], True
-    for env in ("ER(2,1)", "ER(4,2)", "IPD(2)"):
+    parts, ok, short, passed = [], True, [], 0
+    c1_envs = ("ER(2,1)", "ER(4,2)", "IPD(2)")
+    for env in c1_envs:
         r = by.get((env, "self_centered"))
         if r is None or r["margin"] is None:
             ok = False
             parts.append(f"{env}: not run")
+            short.append(f"{env} not run")
             continue
         ok &= r["margin"].lo > 0
+        passed += r["margin"].lo > 0
         parts.append(f"{env}: margin {r['margin'].mean:+.2f} (CI low {r['margin'].lo:+.2f})")
+        short.append(f"{env} {r['margin'].mean:+.2f}")
     for env in ("ER(2,1)", "ER(4,2)"):
         c, s = by.get((env, CLEAN)), by.get((env, "self_centered"))
         if c and s:
@@ -164,14 +207,17 @@ def claims(rows: list[dict]) -> list[Claim]:
                 f"{fmt(s['first_crossing_median'], 0)}, convergence "
                 f"{fmt(c['convergence_median'], 0)} → {fmt(s['convergence_median'], 0)}"
             )
+    speed_seeds = _seeds_of(rows, ("ER(2,1)", "ER(4,2)"), (CLEAN, "self_centered"))
     out.append(
         Claim(
             "C1",
             "self-centered: adversary above the others; ER converges faster",
             "margin: 95 % CI of the adversary's final env-return margin over the mean of the "
-            "others > 0 in ER(2,1), ER(4,2), IPD; speed reported, not judged (medians of 10 seeds)",
+            "others > 0 in ER(2,1), ER(4,2), IPD; speed reported, not judged (medians of "
+            f"{speed_seeds})",
             "; ".join(parts),
             verdict(ok) + " (margin)",
+            f"margin {', '.join(short)}; CI above 0 in {passed}/{len(c1_envs)}",
         )
     )
     # C2
@@ -214,23 +260,33 @@ def claims(rows: list[dict]) -> list[Claim]:
             )
         )
     # C5
-    parts, ok = [], True
+    parts, ok, margins, drops, judged = [], True, 0, 0, 0
     for env in rooms:
         s, d = by.get((env, "admo_stealthy")), by.get((env, "admo_disrupt"))
         if s is None or d is None or s["d_margin"] is None or d["d_success"] is None:
             ok, parts = False, parts + [f"{env}: not run"]
             continue
         ok &= s["d_margin"].lo > 0 and d["d_success"].hi < 0
+        judged += 1
+        margins += s["d_margin"].lo > 0
+        drops += d["d_success"].hi < 0
         parts.append(f"{env}: stealthy Δmargin {s['d_margin']}, disrupt Δsuccess {d['d_success']}")
+    timed = [r for r in rows if r["condition"].startswith("admo") and "time_ratio" in r]
+    times = [r["time_ratio"] for r in timed]
     ratios = [
-        f"{r['env']} {r['condition'].removeprefix('admo_')} {r['time_ratio']:.2f}"
-        for r in rows
-        if r["condition"].startswith("admo") and "time_ratio" in r
+        f"{r['env']} {r['condition'].removeprefix('admo_')} {r['time_ratio']:.2f}" for r in timed
     ]
     parts.append(
         "iteration time ADMO / clean, from the runs' it/s (the sweep's own timing; "
         "benchmarks/throughput.py --attack admo measures it cleanly): " + ", ".join(ratios)
     )
+    summary = (
+        f"stealthy Δmargin CI > 0 in {margins}/{len(rooms)}, disrupt Δsuccess CI < 0 in "
+        f"{drops}/{len(rooms)} ER configs"
+        + (f" ({len(rooms) - judged} not run)" if judged < len(rooms) else "")
+    )
+    if times:
+        summary += f"; ADMO iteration time {min(times):.2f}–{max(times):.2f}× clean"
     out.append(
         Claim(
             "C5",
@@ -239,6 +295,7 @@ def claims(rows: list[dict]) -> list[Claim]:
             "in every ER config",
             "; ".join(parts),
             verdict(ok),
+            summary,
         )
     )
     return out
@@ -247,62 +304,115 @@ def claims(rows: list[dict]) -> list[Claim]:
 # --- figures ---------------------------------------------------------------------------
 
 
-def fig_agent_returns(runs: list[RunRecord], envs: list[str], path) -> None:
-    conditions = sorted({r.condition for r in runs}, key=condition_key)
+def agent_colour(agent: int) -> str:
+    return AGENT_COLOURS[agent % len(AGENT_COLOURS)]
+
+
+def fig_agent_returns(runs: list[RunRecord], envs: list[str], path) -> bool:
+    """Per-agent env return curves, one row per condition and one column per env; the
+    adversary of an attacked run is the thick red curve. One legend names every agent."""
+    cells = {
+        (r.condition, r.env): r
+        for r in runs
+        if r.env in envs and plots.has_curve(r.path, "eval/return_env/agent_0")
+    }
+    conditions = sorted({c for c, _ in cells}, key=condition_key)
+    if not conditions:
+        return False
     fig, axes = plots.plt.subplots(
         len(conditions),
         len(envs),
-        figsize=(4.6 * len(envs), 2.3 * len(conditions)),
+        figsize=(4.6 * len(envs), 2.3 * len(conditions) + 0.6),
         squeeze=False,
         sharex="col",
     )
+    agents, adversaries = 0, set()
     for i, cond in enumerate(conditions):
         for j, env in enumerate(envs):
             ax = axes[i][j]
-            run = next((r for r in runs if r.env == env and r.condition == cond), None)
-            for agent in range(run.num_agents if run else 0):
-                adv = agent == run.adversary
+            run = cells.get((cond, env))
+            if run is None:
+                ax.remove()
+                continue
+            agents = max(agents, run.num_agents)
+            for agent in range(run.num_agents):
+                adv = run.attack is not None and agent == run.adversary
+                if adv:
+                    adversaries.add(agent)
                 plots.band(
                     ax,
                     run.path,
                     f"eval/return_env/agent_{agent}",
-                    f"agent {agent}" + (" (adversary)" if adv else ""),
-                    "tab:red" if adv else None,
-                    lw=2.0 if adv else 0.9,
+                    None,
+                    ADVERSARY_COLOUR if adv else agent_colour(agent),
+                    lw=2.2 if adv else 0.9,
                 )
-            if i == 0:
+            rows = [k for k, c in enumerate(conditions) if (c, env) in cells]
+            if i == rows[0]:
                 ax.set_title(env)
-            if j == 0:
+            if i == rows[-1]:
+                ax.set_xlabel("iteration")
+                ax.tick_params(labelbottom=True)
+            if j == min(envs.index(e) for c, e in cells if c == cond):
                 ax.set_ylabel(f"{cond}\nenv return")
             ax.grid(alpha=0.3)
-            if i == 0 and j == 0:
-                ax.legend(fontsize=6)
-    for ax in axes[-1]:
-        ax.set_xlabel("iteration")
-    plots.save(fig, path, dpi=100)
+    handles = [
+        plots.plt.Line2D([], [], color=agent_colour(a), lw=1.2, label=f"agent {a}")
+        for a in range(agents)
+    ]
+    handles += [
+        plots.plt.Line2D([], [], color=ADVERSARY_COLOUR, lw=2.4, label=f"agent {a} as adversary")
+        for a in sorted(adversaries)
+    ]
+    fig.legend(handles=handles, loc="upper center", ncol=len(handles), fontsize=9, frameon=False)
+    plots.save(fig, path, dpi=100, top=0.45)
+    return True
 
 
-def fig_convergence(runs: list[RunRecord], envs: list[str], colors: dict, path) -> None:
+def fig_convergence(runs: list[RunRecord], envs: list[str], colors: dict, path) -> bool:
     fig, ax = plots.plt.subplots(figsize=(6.5, 3.8))
-    labels = []
+    labels, shown = [], []
     for env in envs:
         for cond in (CLEAN, "self_centered"):
             run = next((r for r in runs if r.env == env and r.condition == cond), None)
             if run is None:
                 continue
             conv = run.summary["convergence"]
+            points = 0
             for key, marker in (("first_crossing_per_seed", "o"), ("per_seed", "s")):
                 values = [v for v in conv[key] if v is not None]
                 jitter = np.linspace(-0.12, 0.12, len(values)) + (0.18 if marker == "s" else -0.18)
                 x = len(labels) + jitter
                 ax.scatter(x, values, marker=marker, s=18, color=colors[cond], alpha=0.8)
+                points += len(values)
+            if not points:
+                ax.annotate(
+                    f"none of\n{run.seeds} seeds\nreached 0.9",
+                    (len(labels), 0.5),
+                    xycoords=("data", "axes fraction"),
+                    ha="center",
+                    va="center",
+                    fontsize=7,
+                    color="0.4",
+                )
+            shown.append(cond)
             labels.append(f"{env}\n{cond}")
+    if not labels:
+        plots.plt.close(fig)
+        return False
     ax.set_xticks(range(len(labels)), labels, fontsize=8)
+    ax.set_xlim(-0.5, len(labels) - 0.5)
     ax.set_ylabel("iteration")
     ax.set_title("per-seed convergence: ○ first crossing, □ stays ≥ 0.9 (smoothed return ratio)")
     ax.title.set_fontsize(8)
     ax.grid(alpha=0.3)
+    handles = [
+        plots.plt.Line2D([], [], ls="", marker="s", color=colors[c], label=c)
+        for c in dict.fromkeys(shown)
+    ]
+    ax.legend(handles=handles, fontsize=7)
     plots.save(fig, path)
+    return True
 
 
 def fig_admo(runs, admo: list[RunRecord], envs: list[str], colors: dict, path) -> None:
@@ -319,17 +429,25 @@ def fig_admo(runs, admo: list[RunRecord], envs: list[str], colors: dict, path) -
     for i, env in enumerate(envs):
         for j, (column, title) in enumerate(panels):
             ax = axes[i][j]
-            for run in plots.runs_of(runs, env):
-                own = column.startswith("admo/")
-                if run.name not in shown or (own and run not in admo):
-                    continue
+            drawn = [
+                run
+                for run in plots.runs_of(runs, env)
+                if run.name in shown
+                and (run in admo or not column.startswith("admo/"))
+                and plots.has_curve(run.path, column)
+            ]
+            if not drawn:
+                ax.remove()
+                continue
+            for run in drawn:
                 plots.band(ax, run.path, column, run.condition, colors[run.condition])
-                if column == "admo/c_1":
+                if column == "admo/c_1" and plots.has_curve(run.path, "admo/c_2"):
                     iterations, values = load_curve(run.path, "admo/c_2")
                     ax.plot(iterations, values.mean(axis=0), ls="--", color=colors[run.condition])
             ax.set_title(f"{env}: {title}", fontsize=9)
             ax.grid(alpha=0.3)
             if i == len(envs) - 1:
                 ax.set_xlabel("iteration")
-        axes[i][0].legend(fontsize=7)
+            if j == 0:
+                ax.legend(fontsize=7)
     plots.save(fig, path, dpi=100)

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from pimbot.analysis import plots
-from pimbot.analysis.document import Context, Section
+from pimbot.analysis.document import Context, Section, count_text, iterations_text
 from pimbot.analysis.runs import CLEAN, NO_DEFENSE, RunRecord, RunTable, condition_key, natural_key
 from pimbot.analysis.tables import Table, estimate
 from pimbot.experiment import presets, store
@@ -37,8 +37,13 @@ def section(table: RunTable, ctx: Context) -> Section | None:
     cells = collect(table, defended)
     timing_path = ctx.suite_dir / GROUP / TIMING
     timing = store.read_json(timing_path) if timing_path.exists() else {}
-    path, figure = ctx.figure("fig_defenses.png", "Defenses: success per attack")
-    plot(cells, path)
+    seeds = count_text((len(c["seeds"]) for c in cells.values()), "seeds")
+    path, figure = ctx.figure(
+        "fig_defenses.png",
+        f"Defenses: final success and adversary margin per defense set and attack (mean over "
+        f"{seeds}, 95 % bootstrap CI)",
+    )
+    plot(cells, path, table.colors)
     return Section(
         "Defenses against every attack",
         text=[
@@ -161,8 +166,11 @@ def metric_tables(cells: dict) -> list[Table]:
                 for attack in conditions
                 if any((env, attack, d) in cells for d in sets)
             ]
-            heading = f"{title}: {env}, {iterations(cells, env) // 1000}k iterations"
-            note = "Mean over seeds [95 % bootstrap CI]." if not out else ""
+            seeds = count_text(
+                (len(c["seeds"]) for (e, _, _), c in cells.items() if e == env), "seeds"
+            )
+            heading = f"{title}: {env}, {iterations_text(iterations(cells, env))}, {seeds}"
+            note = f"Mean over {seeds} [95 % bootstrap CI]." if not out else ""
             name = f"defenses_{metric}_{env}"
             out.append(Table(["attack", *sets], rows, heading, note, name))
     return out
@@ -248,38 +256,44 @@ def cost_table(cells: dict, timing: dict) -> Table:
     return Table(header + ["ms per iteration"], rows, "Cost on clean runs", note, "defenses_cost")
 
 
-def plot(cells: dict, path) -> None:
-    """Final success and adversary margin per attack, one bar per defense set, 95 % CIs."""
+def plot(cells: dict, path, colors: dict) -> None:
+    """Final success and adversary margin per defense set, one bar per attack in the
+    attack's colour (the report's one condition mapping), 95 % CIs."""
     envs, conditions, sets = axes(cells)
     fig, grid = plots.plt.subplots(2, len(envs), figsize=(5.2 * len(envs), 7.5), squeeze=False)
-    colors = dict(zip(sets, plots.plt.get_cmap("tab10").colors, strict=False))
-    width = 0.8 / len(sets)
+    width = 0.8 / len(conditions)
     for col, env in enumerate(envs):
         for row, (metric, ylabel) in enumerate(
             (("success", "final success"), ("margin", "adversary env margin"))
         ):
             ax = grid[row][col]
-            for k, d in enumerate(sets):
+            for a, attack in enumerate(conditions):
                 xs, means, errs = [], [], []
-                for a, attack in enumerate(conditions):
+                for k, d in enumerate(sets):
                     c = cells.get((env, attack, d))
                     if c is None:
                         continue
                     lo, hi = bootstrap_ci(c[metric])
                     m = c[metric].mean()
-                    xs.append(a + (k - (len(sets) - 1) / 2) * width)
+                    xs.append(k + (a - (len(conditions) - 1) / 2) * width)
                     means.append(m)
                     errs.append([m - lo, hi - m])
                 if xs:
                     yerr = np.array(errs).T
-                    ax.bar(xs, means, width, yerr=yerr, color=colors[d], label=d, capsize=2)
-            ax.set_xticks(range(len(conditions)))
-            ax.set_xticklabels([a.replace("_", "\n") for a in conditions], fontsize=8)
+                    color = colors.get(attack)
+                    ax.bar(xs, means, width, yerr=yerr, color=color, label=attack, capsize=2)
+                    plots.mark_zero_bars(ax, xs, means, color)
+            ax.set_xticks(range(len(sets)), sets)
+            ax.set_xlabel("defense")
             ax.set_ylabel(ylabel)
             if row == 0:
-                ax.set_title(f"{env} ({iterations(cells, env) // 1000}k iterations)")
+                ax.set_title(f"{env} ({iterations_text(iterations(cells, env))})")
                 ax.set_ylim(0, 1.05)
             ax.axhline(0, color="black", lw=0.5)
-    grid[0][0].legend(title="defense", fontsize=8)
-    fig.suptitle("LIO under attack with each defense: mean over seeds, 95 % bootstrap CI")
+            ax.grid(axis="y", alpha=0.3)
+    grid[0][0].legend(title="attack", fontsize=8)
+    seeds = count_text((len(c["seeds"]) for c in cells.values()), "seeds")
+    fig.suptitle(
+        f"LIO under attack with each defense\nmean over {seeds}, 95 % bootstrap CI", fontsize=10
+    )
     plots.save(fig, path, dpi=120)

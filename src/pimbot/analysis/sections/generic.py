@@ -6,7 +6,7 @@ from __future__ import annotations
 import re
 
 from pimbot.analysis import plots
-from pimbot.analysis.document import Context, Section
+from pimbot.analysis.document import Context, Section, final_window_text, seeds_text
 from pimbot.analysis.runs import (
     CLEAN,
     NO_DEFENSE,
@@ -31,15 +31,16 @@ def section(table: RunTable, ctx: Context) -> Section | None:
         "Other training runs",
         text=[
             "Runs no paper section reads (a `pimbot sweep` grid, say), labelled from their "
-            "configs. Final = mean of the last 10 evaluation points per seed, [95 % bootstrap "
-            "CI over seeds]; margin = the adversary's env return minus the mean of the "
-            "others'; Δ = this run − the clean run of the same env, learner and defenses "
-            "(seeds resampled independently)."
+            f"configs. Final = mean of the last {final_window_text(rest)} per seed, [95 % "
+            f"bootstrap CI over {seeds_text(rest)}]; margin = the adversary's env return minus "
+            "the mean of the others'; Δ = this run − the clean run of the same env, learner "
+            "and defenses (seeds resampled independently)."
         ],
     )
     for group in sorted({r.group for r in rest}):
         figure, result = group_results(table, [r for r in rest if r.group == group], group, ctx)
-        out.figures.append(figure)
+        if figure is not None:
+            out.figures.append(figure)
         out.tables.append(result)
     return out
 
@@ -60,7 +61,8 @@ def sort_key(run: RunRecord, envs: dict) -> tuple:
 
 
 def group_results(table: RunTable, runs: list[RunRecord], group: str, ctx: Context):
-    """(success curves, final-metric table) of one group's runs."""
+    """(success curves or None where no run logged success, final-metric table) of one
+    group's runs."""
     ctx.claim(runs)
     envs = distinct_env_labels(runs)
     runs = sorted(runs, key=lambda r: sort_key(r, envs))
@@ -76,9 +78,13 @@ def group_results(table: RunTable, runs: list[RunRecord], group: str, ctx: Conte
         style = STYLES[sets.index(run.defenses) % len(STYLES)]
         lines.append((run, label, colors[run.condition], style))
     path, figure = ctx.figure(
-        f"{slug}_success.png", f"{group}: success per condition (mean over seeds, 95 % CI band)"
+        f"{slug}_success.png",
+        f"{group}: success per condition (mean over {seeds_text(runs)}, 95 % CI band)",
     )
-    plots.curve_panels(list(panels.items()), "eval/success", "success", path, min(3, len(panels)))
+    if not plots.curve_panels(
+        list(panels.items()), "eval/success", "success", path, min(3, len(panels))
+    ):
+        figure = None
     rows = []
     for run in runs:
         success = run.per_seed("eval/success")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pimbot.analysis import plots
 from pimbot.analysis.curves import load_curve
-from pimbot.analysis.document import Claim, Context, Section, verdict
+from pimbot.analysis.document import Claim, Context, Section, seeds_text, verdict
 from pimbot.analysis.runs import CLEAN, RunRecord, RunTable, condition_key, natural_key
 from pimbot.analysis.tables import Table, difference, estimate
 from pimbot.experiment import store
@@ -67,15 +67,18 @@ def section(table: RunTable, ctx: Context) -> Section | None:
         if any(r.env == env for r in grudge)
     ]
     if panels:
-        path, figure = ctx.figure("fig7_reciprocators.png", "Fig. 7: Reciprocators, clean vs ADMO")
-        title = "C7: Reciprocators (mean over seeds, 95 % CI band)"
-        plots.curve_panels(panels, "eval/success", "success", path, 3, (-0.05, 1.05), title)
-        out.figures.append(figure)
+        seeds = seeds_text(grudge)
+        path, figure = ctx.figure(
+            "fig7_reciprocators.png", f"Fig. 7: Reciprocators, clean vs ADMO ({seeds})"
+        )
+        title = f"C7: Reciprocators (mean over {seeds}, 95 % CI band)"
+        if plots.curve_panels(panels, "eval/success", "success", path, 3, (-0.05, 1.05), title):
+            out.figures.append(figure)
     path, figure = ctx.figure("fig7b_ipd_fidelity.png", "Fig. 7b: 2-player IPD fidelity")
     if fig_fidelity(runs, path):
         out.figures.append(figure)
     by = {(r["env"], r["learner"], r["condition"]): r for r in rows}
-    parts, ok = [], True
+    parts, ok, clean_ok, admo_ok, targets = [], True, 0, 0, 0
     for env in [e for e in C7_ENVS if e in envs]:
         clean = by.get((env, f"{LEARNER} (grudge)", CLEAN))
         admo = by.get((env, f"{LEARNER} (grudge)", ATTACKED))
@@ -85,9 +88,13 @@ def section(table: RunTable, ctx: Context) -> Section | None:
             continue
         base, attacked = clean["success"].mean, admo["success"].mean
         ok &= base >= 0.8
+        clean_ok += base >= 0.8
         if env in C7_TARGETS:
             ok &= attacked < C7_TARGETS[env]
+            admo_ok += attacked < C7_TARGETS[env]
+            targets += 1
         parts.append(f"{env}: {base:.2f} → {attacked:.2f}")
+    judged = [e for e in C7_ENVS if e in envs]
     out.claims.append(
         Claim(
             "C7",
@@ -96,6 +103,8 @@ def section(table: RunTable, ctx: Context) -> Section | None:
             "success < 0.1 in ER(4,3), IPD(2,3,4), Stag Hunt(2,3,4) and < 0.3 in ER(4,2)",
             "clean → ADMO: " + "; ".join(parts),
             verdict(ok),
+            f"clean ≥ 0.8 in {clean_ok}/{len(judged)} envs; ADMO below its bound in "
+            f"{admo_ok}/{targets}",
         )
     )
     out.tables.append(results_table(rows))
@@ -180,6 +189,6 @@ def fig_fidelity(runs: list[RunRecord], path) -> bool:
         ax.set_xlabel("iteration")
         ax.set_ylabel("rate; (return/step + 3)/3")
         ax.legend(fontsize=7)
-    fig.suptitle("2-player IPD fidelity (mean over seeds)")
+    fig.suptitle(f"2-player IPD fidelity (mean over {seeds_text(r for r, _ in cases)})")
     plots.save(fig, path)
     return True

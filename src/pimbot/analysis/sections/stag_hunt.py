@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from pimbot.analysis import plots
-from pimbot.analysis.document import Claim, Context, Section, verdict
+from pimbot.analysis.document import Claim, Context, Section, seeds_text, verdict
 from pimbot.analysis.runs import CLEAN, RunRecord, RunTable, natural_key
 from pimbot.analysis.tables import Estimate, Table, estimate
 from pimbot.experiment import store
@@ -20,10 +20,14 @@ def section(table: RunTable, ctx: Context) -> Section | None:
         return None
     ctx.claim(runs)
     envs = sorted({r.env for r in runs}, key=natural_key)
-    path, figure = ctx.figure("fig6_stag_hunt.png", "Fig. 6: Stag Hunt N = 2, 3, 4")
+    path, figure = ctx.figure(
+        "fig6_stag_hunt.png",
+        f"Fig. 6: Stag Hunt N = {', '.join(str(n) for n in sorted({r.num_agents for r in runs}))} "
+        f"(mean over {seeds_text(runs)}, 95 % bootstrap band)",
+    )
     panels = plots.condition_panels(runs, envs, table.colors)
-    plots.curve_panels(panels, "eval/success", "success", path)
-    rows, parts, ok = [], [], True
+    written = plots.curve_panels(panels, "eval/success", "success", path)
+    rows, parts, ok, rising, low = [], [], True, 0, 0
     for env in envs:
         clean = next((r for r in runs if r.env == env and r.condition == CLEAN), None)
         admo = next((r for r in runs if r.env == env and r.condition == ATTACKED), None)
@@ -34,6 +38,8 @@ def section(table: RunTable, ctx: Context) -> Section | None:
         gain = rise(clean)
         final = estimate(admo.per_seed("eval/success"))
         ok &= gain.lo > 0 and final.mean <= 0.1
+        rising += gain.lo > 0
+        low += final.mean <= 0.1
         parts.append(f"{env}: clean rise {gain}, ADMO final {final}")
         for run in (clean, admo):
             success = run.per_seed("eval/success")
@@ -45,13 +51,14 @@ def section(table: RunTable, ctx: Context) -> Section | None:
         "(disrupt) final success ≤ 0.1, for every N",
         "; ".join(parts),
         verdict(ok),
+        f"clean rise CI > 0 in {rising}/{len(envs)}; ADMO final ≤ 0.1 in {low}/{len(envs)}",
     )
     header = ["env", "condition", "seeds", "final success [CI]", "rise [CI]"]
     return Section(
         "Stag Hunt: LIO vs ADMO (C6)",
         text=["Success = episode env reward / 5 (environments spec)."],
         tables=[Table(header, rows, name="stag_hunt")],
-        figures=[figure],
+        figures=[figure] if written else [],
         claims=[claim],
     )
 

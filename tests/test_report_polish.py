@@ -1,0 +1,206 @@
+"""The paper-grade report: provenance, contents, SVG figures, counts read from the runs, one
+colour per condition, verdict styles and no empty panels.
+
+The suite is synthetic and written by hand (config.json, metrics.csv and summary.json of
+2-seed runs; nothing is trained), so the whole file runs in seconds.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import re
+import types
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pimbot.analysis import document, plots, report, runs
+from pimbot.analysis.document import Claim, Section
+from pimbot.experiment import sweep
+
+SEEDS = 2
+ITERATIONS = 300
+COMMIT = "0123456789abcdef0123456789abcdef01234567"
+SRC = Path(__file__).resolve().parents[1] / "src" / "pimbot" / "analysis"
+
+
+def write_run(root: Path, name: str, attack: str | None, params=None, steps: bool = True) -> Path:
+    """A finished ER(2,1) LIO run of SEEDS seeds, as the runner would have left it."""
+    path = root / name
+    path.mkdir(parents=True)
+    env_params = {"max_steps": 5, "min_at_lever": 1, "n_agents": 2, "randomize_start": False}
+    params = {"adversary": 0, **(params or {})} if attack else {}
+    config = {
+        "identity": {
+            "attack": attack,
+            "attack_params": params,
+            "env_id": "escape_room-v0",
+            "env_params": env_params,
+            "eval_episodes": 10,
+            "eval_period": 20,
+            "first_seed": 0,
+            "iterations": ITERATIONS,
+            "learner": "lio",
+            "learner_config": {"original_shared_incentive_updates": False},
+            "seeds": SEEDS,
+        },
+        "run_config": {"attack_params": [], "hparams": [], "defenses": []},
+        "env": {"id": "escape_room-v0", "num_agents": 2, "params": env_params},
+        "pimbot_version": "0.1.0",
+        "git_commit": COMMIT,
+        "jax_version": "0.0.test",
+        "jax_backend": "cpu",
+        "devices": ["cpu:0"],
+    }
+    (path / "config.json").write_text(json.dumps(config))
+    (path / "summary.json").write_text(json.dumps({"finished": True}))
+    rng = np.random.default_rng(len(name))
+    header = ["iteration", "seed", "eval/success", "eval/return_ratio"]
+    header += ["eval/return_env/agent_0", "eval/return_env/agent_1"]
+    header += ["eval/adversary_margin_env", "perf/iters_per_s"] + (["eval/steps"] if steps else [])
+    with open(path / "metrics.csv", "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(header)
+        for seed in range(SEEDS):
+            for it in range(20, ITERATIONS + 1, 20):
+                a, b = rng.normal(0, 1, 2)
+                row = [it, seed, rng.uniform(), rng.uniform(-1, 1), a, b, a - b, 1000.0]
+                writer.writerow(row + ([rng.uniform(1, 5)] if steps else []))
+    return path
+
+
+@pytest.fixture(scope="module")
+def suite(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("polish")
+    write_run(root, "attacks/er21_clean", None)
+    write_run(root, "attacks/er21_bypass", "bypass", {"adversary": 1})
+    write_run(root, "attacks/er21_reverse", "reverse")
+    write_run(root, "mygrid/er21_reverse", "reverse")
+    jobs = [
+        {"name": n, "group": n.split("/")[0], "kind": "train", "status": "finished",
+         "claims": ["C3"] if n.startswith("attacks") else []}
+        for n in ("attacks/er21_clean", "attacks/er21_bypass", "attacks/er21_reverse",
+                  "mygrid/er21_reverse")
+    ]  # fmt: skip
+    sweep.write_index(root, {"suite": "full", "jobs": jobs})
+    return root
+
+
+@pytest.fixture(scope="module")
+def built(suite, tmp_path_factory) -> Path:
+    return report.write_report(suite, tmp_path_factory.mktemp("report"))
+
+
+def test_provenance_and_contents(built):
+    markdown = (built / report.MARKDOWN).read_text()
+    page = (built / report.HTML).read_text()
+    assert "## Provenance" in markdown and "**Contents**" in markdown
+    assert markdown.index("**Contents**") < markdown.index("## Provenance")
+    assert markdown.index("## Provenance") < markdown.index("## Claims")
+    for value in (COMMIT, "0.0.test", "| JAX backend | cpu | 4/4 |", "cpu:0", "report generated"):
+        assert value in markdown, value
+    # The budget of each group, read from the runs.
+    assert "| attacks | 3 | 2 seeds | 300 iterations | every 20 iterations | lio |" in markdown
+    assert "| mygrid | 1 | 2 seeds | 300 iterations |" in markdown
+    # Every entry of the contents points at an anchor that exists, in both files.
+    md_links = re.findall(r"\]\(#([a-z0-9-]+)\)", markdown)
+    md_ids = set(re.findall(r'<a id="([a-z0-9-]+)"></a>', markdown))
+    assert "provenance" in md_links and set(md_links) <= md_ids
+    assert "<nav class='toc'>" in page
+    html_links = re.findall(r"href='#([a-z0-9-]+)'", page)
+    html_ids = set(re.findall(r"id='([a-z0-9-]+)'", page))
+    assert "attacks-on-lio-c1-c5" in html_links and set(html_links) <= html_ids
+    assert (built / report.TABLES / "provenance.csv").exists()
+
+
+def test_every_figure_has_an_svg_beside_it(built):
+    markdown = (built / report.MARKDOWN).read_text()
+    figures = sorted((built / report.FIGURES).glob("*.png"))
+    assert len(figures) >= 3  # fig1, fig2, fig3 and the group's success curves
+    for png in figures:
+        svg = png.with_suffix(".svg")
+        assert svg.exists() and svg.read_text().lstrip().startswith("<?xml"), svg.name
+        assert f"{report.FIGURES}/{png.name}" in markdown
+        assert f"{report.FIGURES}/{svg.name}" in markdown
+    assert not list((built / report.FIGURES).glob("fig8*"))  # no profile: not written
+
+
+def test_seed_counts_come_from_the_runs(built):
+    markdown = (built / report.MARKDOWN).read_text()
+    assert "over 2 seeds" in markdown and "medians of 2 seeds" in markdown
+    assert "last 10 evaluation points" in markdown  # summarize's window, read back
+    assert not re.search(r"\b(10|3) seeds\b", markdown)
+    # No section spells out a seed count: every one is formatted from the runs.
+    for path in SRC.rglob("*.py"):
+        text = path.read_text()
+        assert not re.search(r"(over|of|median of|medians of) \d+ seeds", text), path.name
+
+
+def test_one_colour_per_condition_in_every_figure(suite, built):
+    colours = runs.condition_colors(["reverse", "bypass", "zeta"])
+    assert list(colours) == ["clean", "bypass", "reverse", "zeta"]  # clean first
+    # A paper condition keeps its colour whatever else the report holds.
+    assert runs.condition_colors(["bypass"])["bypass"] == colours["bypass"]
+    assert len(set(colours.values())) == len(colours)
+    table = runs.load_table(suite)
+    assert table.colors == runs.condition_colors(r.condition for r in table.records)
+    # The same hex colour draws "reverse" in the attack figures and in the generic one
+    # (whose group has no clean run), and "clean" in both attack figures.
+    for name in ("fig1_success.svg", "fig3_steps.svg", "mygrid_success.svg"):
+        svg = (built / report.FIGURES / name).read_text().lower()
+        assert colours["reverse"] in svg, name
+        assert (colours["clean"] in svg) == name.startswith("fig"), name
+
+
+def test_verdict_kinds_are_styled_and_marked(built):
+    claims = [
+        Claim("C1", "a", "r", "m", "reproduced (quick budget)"),
+        Claim("C2", "b", "r", "long measured text", "not reproduced", summary="short"),
+        Claim("C3", "c", "r", "m", "inconclusive"),
+        Claim("C4", "d", "r", "m", "not run"),
+    ]
+    assert [document.verdict_kind(c.verdict) for c in claims] == [
+        "reproduced",
+        "not-reproduced",
+        "inconclusive",
+        "not-run",
+    ]
+    provenance = Section("Provenance", tables=[])
+    provenance.tables = [report.Table(["a"], [], "x"), report.Table(["a"], [], "y")]
+    rendered = report.Report({"jobs": [{"claims": ["C1"], "status": "finished"}]},
+                             provenance, claims, [])  # fmt: skip
+    page = report.render_html(rendered, built)
+    for kind in ("reproduced", "not-reproduced", "inconclusive", "not-run"):
+        assert f"class='verdict {kind}'" in page
+        assert f".{kind} {{" in page  # its own style
+    markdown = report.render_markdown(rendered)
+    assert "**✔ reproduced (quick budget)**" in markdown and "**✘ not reproduced**" in markdown
+    assert "◐ inconclusive" in markdown and "○ not run" in markdown
+    # A compact measured cell; the full text below the table, linked.
+    assert "| short ([details](#claim-c2)) |" in markdown
+    assert '<a id="claim-c2"></a>**C2**: long measured text' in markdown
+    # The real report's claims table has the classes too.
+    assert "class='verdict not-run'" in (built / report.HTML).read_text()
+
+
+def test_a_panel_without_data_is_dropped_and_an_empty_figure_not_written(suite, tmp_path):
+    with_steps = types.SimpleNamespace(path=suite / "attacks/er21_clean")
+    without = types.SimpleNamespace(path=write_run(tmp_path, "g/no_steps", None, steps=False))
+    path = tmp_path / "steps.png"
+    assert not plots.curve_panels([("A", [(without, "clean", "#000000")])], "eval/steps", "", path)
+    assert not path.exists() and not path.with_suffix(".svg").exists()
+    panels = [("A", [(with_steps, "clean", "#000000")]), ("B", [(without, "clean", "#000000")])]
+    assert plots.curve_panels(panels, "eval/steps", "steps", path)
+    svg = path.with_suffix(".svg").read_text()
+    assert svg.count('id="axes_') == 1  # panel B had no data: dropped
+
+
+def test_counts_and_iterations_text():
+    assert document.count_text([3, 3], "seeds") == "3 seeds"
+    assert document.count_text([2, 3], "seeds") == "2–3 seeds"
+    assert document.count_text([1], "episodes") == "1 episode"
+    assert document.iterations_text(4000) == "4k iterations"
+    assert document.iterations_text(400) == "400 iterations"  # never "0k"
+    assert document.iterations_text([5000, 10000]) == "5k–10k iterations"
