@@ -7,6 +7,10 @@
     pimbot profile --env ENV_ID [name=value ...] --controller benign|admo --duration S --out DIR
     pimbot envs | learners | attacks | defenses
 
+`train`, `sweep` and `reproduce` take `--log tensorboard|wandb|mlflow` (repeatable or
+comma-separated) to stream every metrics row and the config to those trackers
+(see `pimbot.experiment.tracking`).
+
 Every command takes `--plugin MODULE` (repeatable; a module name or a .py
 file) to load plugins that register more envs, learners, attacks or
 defenses (see `pimbot.plugins`). Bad input prints one line naming the field
@@ -101,6 +105,26 @@ def _cpu_list(text: str) -> tuple[int, ...]:
     return tuple(cpus)
 
 
+def _add_log_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--log",
+        action="append",
+        default=[],
+        metavar="BACKEND",
+        help="stream every metrics row and the config to tensorboard, wandb or mlflow "
+        "(repeatable or comma-separated; pip install 'pimbot[tracking]')",
+    )
+
+
+def _log_backends(args: argparse.Namespace) -> tuple[str, ...]:
+    """The --log backends, each with its client installed (else a one-line error)."""
+    from pimbot.experiment import tracking
+
+    backends = tracking.parse(args.log)
+    tracking.require_clients(backends)
+    return backends
+
+
 def _add_profile_parser(commands) -> None:
     profile = commands.add_parser(
         "profile", help="decision latency, update cost and hardware traces (benign vs ADMO)"
@@ -177,6 +201,7 @@ def _add_suite_options(parser: argparse.ArgumentParser, example: str) -> None:
     )
     parser.add_argument("--list", action="store_true", help="print the plan and exit")
     parser.add_argument("--quiet", action="store_true", help="no progress display")
+    _add_log_option(parser)
     parser.add_argument("--out", required=True, help="suite directory (rerun to resume)")
 
 
@@ -270,10 +295,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--chunk-iterations",
         type=_int_arg("chunk_iterations", 1),
         default=2000,
-        help="iterations per compiled chunk, i.e. between checkpoints (rounded to whole "
-        "evaluation periods; does not change results)",
+        help="iterations between checkpoints (rounded to whole evaluation periods; does "
+        "not change results)",
     )
     train.add_argument("--quiet", action="store_true", help="no progress display")
+    _add_log_option(train)
     defense_cli.add_train_arguments(train)
 
     table = commands.add_parser("table", help="Markdown table of finished runs' final metrics")
@@ -358,6 +384,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 
     if args.attack_param and args.attack is None:
         raise UsageError("attack_param: given without --attack NAME (see `pimbot attacks`)")
+    log = _log_backends(args)
 
     run = RunConfig(
         env_id=args.env_id,
@@ -381,6 +408,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         progress=not args.quiet,
         chunk_iterations=args.chunk_iterations,
         on_chunk=on_chunk,
+        log=log,
     )
     if on_chunk is not None:
         print(f"audit log {args.audit_log}: head {on_chunk.log.last_hash}")
@@ -501,6 +529,7 @@ def _run_suite(jobs, args: argparse.Namespace, suite_name: str, loaded: tuple[st
         )
     if args.ray_address is not None and args.backend != "ray":
         raise UsageError("ray_address: given without --backend ray")
+    log = _log_backends(args)
     try:
         jobs = sweep.select(jobs, args.only)
         if args.list:
@@ -517,6 +546,7 @@ def _run_suite(jobs, args: argparse.Namespace, suite_name: str, loaded: tuple[st
             ray_address=args.ray_address,
             progress=not args.quiet,
             plugins=loaded,
+            log=log,
         )
         result = sweep.run(jobs, args.out, suite_name, options)
     except sweep.SweepError as error:

@@ -3,9 +3,9 @@
 A `Job` is one run directory of a suite: a name, a kind and the kind's spec.
 A kind is four small functions on (job directory, spec): `status` (finished,
 partial or pending; raises `JobConflict` when the directory holds a different
-job), `execute` (runs or resumes it), `progress` (fraction done, for the
-display) and `cost` (relative work, for the ETA). Adding a kind of job to
-`pimbot reproduce` means adding one entry to `KINDS`.
+job), `execute` (runs or resumes it, with the suite's `JobOptions`), `progress`
+(fraction done, for the display) and `cost` (relative work, for the ETA).
+Adding a kind of job to `pimbot reproduce` means adding one entry to `KINDS`.
 """
 
 from __future__ import annotations
@@ -38,6 +38,16 @@ class Job:
     @property
     def group(self) -> str:
         return self.name.split("/", 1)[0]
+
+
+@dataclasses.dataclass(frozen=True)
+class JobOptions:
+    """How every job of a suite runs (the same for all of them); none of it changes results."""
+
+    chunk_iterations: int = 2000
+    """Iterations per checkpoint of every training job."""
+    log: tuple[str, ...] = ()
+    """Tracking backends each training job streams its own run to (`experiment.tracking`)."""
 
 
 class JobConflict(Exception):
@@ -79,10 +89,12 @@ def train_status(path: Path, spec) -> str:
     return "partial" if (path / store.CHECKPOINT_DIR).exists() else "pending"
 
 
-def train_execute(path: Path, spec, suite_dir: Path, chunk_iterations: int) -> dict[str, Any]:
+def train_execute(path: Path, spec, suite_dir: Path, options: JobOptions) -> dict[str, Any]:
     from pimbot.experiment.runner import train
 
-    result = train(spec, path, progress=False, chunk_iterations=chunk_iterations)
+    result = train(
+        spec, path, progress=False, chunk_iterations=options.chunk_iterations, log=options.log
+    )
     return {"success": result.summary["final"]["eval/success"]["mean"]}
 
 
@@ -113,7 +125,7 @@ def profile_status(path: Path, spec) -> str:
     )
 
 
-def profile_execute(path: Path, spec, suite_dir: Path, chunk_iterations: int) -> dict[str, Any]:
+def profile_execute(path: Path, spec, suite_dir: Path, options: JobOptions) -> dict[str, Any]:
     from pimbot.profiling import profile
 
     _clear(path)
@@ -128,7 +140,7 @@ def robot_status(path: Path, spec) -> str:
     return _summary_status(path, _as_json(spec), lambda s: s.get("spec"))
 
 
-def robot_execute(path: Path, spec, suite_dir: Path, chunk_iterations: int) -> dict[str, Any]:
+def robot_execute(path: Path, spec, suite_dir: Path, options: JobOptions) -> dict[str, Any]:
     from pimbot.robot.evaluate import evaluate_run
 
     _clear(path)
@@ -155,7 +167,7 @@ def train_describe(run) -> str:
 @dataclasses.dataclass(frozen=True)
 class Kind:
     status: Callable[[Path, Any], str]
-    execute: Callable[[Path, Any, Path, int], dict[str, Any]]
+    execute: Callable[[Path, Any, Path, JobOptions], dict[str, Any]]
     progress: Callable[[Path, Any], float]
     cost: Callable[[Any], float]
     describe: Callable[[Any], str]

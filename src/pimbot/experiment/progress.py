@@ -66,3 +66,42 @@ class Progress:
     def close(self) -> None:
         if self._bar is not None:
             self._bar.stop()
+
+
+class CompileNotice:
+    """`compiling TITLE … N s` on stderr while a program compiles, then how long it took.
+
+    On a terminal the line counts the seconds (rich redraws it from its own thread,
+    which runs while XLA compiles); elsewhere one line before and one after.
+    """
+
+    def __init__(self, title: str, enabled: bool = True):
+        self.title, self.enabled = title, enabled
+        self.seconds = 0.0
+        self._live = None
+
+    def __enter__(self) -> CompileNotice:
+        self.t0 = time.perf_counter()
+        if not self.enabled:
+            return self
+        if sys.stderr.isatty():
+            from rich.progress import Progress as RichProgress
+            from rich.progress import SpinnerColumn, TextColumn
+
+            self._live = RichProgress(
+                SpinnerColumn(),
+                TextColumn("compiling {task.description} … {task.elapsed:.0f} s"),
+                transient=True,
+            )
+            self._live.add_task(self.title, total=None)
+            self._live.start()
+        else:
+            print(f"compiling {self.title} …", file=sys.stderr, flush=True)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.seconds = time.perf_counter() - self.t0
+        if self._live is not None:
+            self._live.stop()
+        if self.enabled and exc[0] is None:
+            print(f"compiled {self.title} in {self.seconds:.1f} s", file=sys.stderr, flush=True)

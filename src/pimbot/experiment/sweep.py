@@ -34,7 +34,7 @@ from typing import Any
 from pimbot import plugins as plugin_loader
 from pimbot.envs.core import InvalidParameter
 from pimbot.experiment import store
-from pimbot.experiment.jobs import KINDS, Job, JobConflict
+from pimbot.experiment.jobs import KINDS, Job, JobConflict, JobOptions
 
 INDEX = "index.json"
 BACKENDS = ("local", "ray")
@@ -58,9 +58,15 @@ class SweepOptions:
     """Ray cluster address ("auto", "HOST:PORT"); None starts a local Ray instance."""
     progress: bool = True
     chunk_iterations: int = 2000
-    """Iterations per compiled chunk and checkpoint of every training job."""
+    """Iterations per checkpoint of every training job."""
     plugins: tuple[str, ...] = ()
     """Plugin modules every worker loads (as `plugins.load_plugins` returned them)."""
+    log: tuple[str, ...] = ()
+    """Tracking backends every training job streams its own run to (`experiment.tracking`)."""
+
+    @property
+    def job_options(self) -> JobOptions:
+        return JobOptions(chunk_iterations=self.chunk_iterations, log=self.log)
 
 
 def select(jobs: list[Job], patterns: Iterable[str] | None) -> list[Job]:
@@ -124,10 +130,11 @@ def execute_job(
     job: Job,
     suite_dir: str,
     devices: int,
-    chunk_iterations: int = 2000,
+    options: JobOptions | None = None,
     plugins: tuple[str, ...] = (),
 ) -> dict[str, Any]:
     """Runs (or resumes, or confirms finished) one job; returns its status record."""
+    options = options or JobOptions()
     _configure_worker(devices)
     plugin_loader.load_plugins(plugins, from_env=False)  # once per process
     path = job_dir(Path(suite_dir), job)
@@ -135,7 +142,7 @@ def execute_job(
     t0 = time.perf_counter()
     with open(path.parent / f".{path.name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # waits out a leftover worker of a killed sweep
-        record = KINDS[job.kind].execute(path, job.spec, Path(suite_dir), chunk_iterations)
+        record = KINDS[job.kind].execute(path, job.spec, Path(suite_dir), options)
     record["wall_s"] = time.perf_counter() - t0
     return record
 
@@ -190,7 +197,7 @@ class LocalBackend:
             job,
             str(suite_dir),
             self.devices,
-            self.options.chunk_iterations,
+            self.options.job_options,
             self.options.plugins,
         )
 
@@ -216,8 +223,8 @@ class RayBackend:
 
     def submit(self, job: Job, suite_dir: Path) -> futures.Future:
         path = str(Path(suite_dir).resolve())
-        chunk, plugins = self.options.chunk_iterations, self.options.plugins
-        return self.remote.remote(job, path, self.devices, chunk, plugins).future()
+        job_options, plugins = self.options.job_options, self.options.plugins
+        return self.remote.remote(job, path, self.devices, job_options, plugins).future()
 
     def shutdown(self) -> None:
         pass
