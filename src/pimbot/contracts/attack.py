@@ -214,12 +214,7 @@ ATTACKS: Registry[type[Attack]] = Registry("attack", "attack")
 
 def register(cls: type[Attack], *, replace: bool = False) -> type[Attack]:
     """Registers an attack class under `cls.name` (usable as a class decorator)."""
-    if not (isinstance(cls, type) and issubclass(cls, Attack)):
-        raise TypeError(f"attacks must subclass pimbot.contracts.attack.Attack, got {cls!r}")
-    unknown = set(cls.hooks) - set(HOOKS)
-    if unknown:
-        raise ValueError(f"attack {cls.name}: unknown hooks {sorted(unknown)}; known: {HOOKS}")
-    return ATTACKS.register(cls.name, cls, replace=replace)
+    return ATTACKS.register_hooked_class(cls, Attack, HOOKS, replace=replace)
 
 
 def parameters(cls: type[Attack]) -> dict[str, Any]:

@@ -102,12 +102,7 @@ DEFENSES: Registry[type[Defense]] = Registry("defense", "defenses")
 
 def register(cls: type[Defense], *, replace: bool = False) -> type[Defense]:
     """Registers a defense class under `cls.name` (usable as a class decorator)."""
-    if not (isinstance(cls, type) and issubclass(cls, Defense)):
-        raise TypeError(f"defenses must subclass pimbot.contracts.defense.Defense, got {cls!r}")
-    unknown = set(cls.hooks) - set(HOOKS)
-    if unknown:
-        raise ValueError(f"defense {cls.name}: unknown hooks {sorted(unknown)}; known: {HOOKS}")
-    return DEFENSES.register(cls.name, cls, replace=replace)
+    return DEFENSES.register_hooked_class(cls, Defense, HOOKS, replace=replace)
 
 
 def honest_agents(attack, num_agents: int) -> jax.Array:

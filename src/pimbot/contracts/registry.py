@@ -26,6 +26,20 @@ class Registry(Generic[T]):
         self._entries[name] = entry
         return entry
 
+    def register_hooked_class(self, cls, base: type, hooks: tuple[str, ...], *, replace=False):
+        """Registers a class of hook points under `cls.name`: it must subclass `base` and
+        list only hook points among `hooks` in its `hooks`."""
+        if not (isinstance(cls, type) and issubclass(cls, base)):
+            raise TypeError(
+                f"{self.kind}s must subclass {base.__module__}.{base.__qualname__}, got {cls!r}"
+            )
+        unknown = set(cls.hooks) - set(hooks)
+        if unknown:
+            raise ValueError(
+                f"{self.kind} {cls.name}: unknown hooks {sorted(unknown)}; known: {hooks}"
+            )
+        return self.register(cls.name, cls, replace=replace)
+
     def get(self, name: str) -> T:
         if name not in self._entries:
             raise InvalidParameter(
