@@ -36,23 +36,3 @@ def check_int(name: str, value: Any, low: int) -> None:
     """Raises InvalidParameter unless `value` is an integer ≥ `low`."""
     if isinstance(value, bool) or not isinstance(value, int) or value < low:
         raise InvalidParameter(f"{name}: must be an integer ≥ {low}, got {value!r}")
-
-
-def field_docs(cls: type) -> dict[str, str]:
-    """Each dataclass field's docstring (the string literal under it in the class body)."""
-    import ast
-    import inspect
-    import textwrap
-
-    docs: dict[str, str] = {}
-    for klass in reversed(cls.__mro__):
-        try:
-            tree = ast.parse(textwrap.dedent(inspect.getsource(klass)))
-        except (OSError, TypeError, SyntaxError):
-            continue
-        body = getattr(tree.body[0], "body", []) if tree.body else []
-        for node, after in zip(body, body[1:], strict=False):
-            named = isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)
-            if named and isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant):
-                docs[node.target.id] = " ".join(str(after.value.value).split())
-    return docs

@@ -5,12 +5,15 @@ plugin learner is). `get(name)` returns a learner's definition; `registered()` l
 
 from __future__ import annotations
 
+from pimbot import envs
+from pimbot.contracts import attack as attack_contract
+from pimbot.contracts import defense as defense_contract
 from pimbot.contracts import learner as contract
 from pimbot.contracts.learner import LearnerDef, register
 from pimbot.learners import lio, pg, reciprocator
 
-_ALL_ATTACK_HOOKS = ("act", "emit", "learning_rewards", "policy_sign", "adversary_step", "observe")
-_NO_CHANNEL_HOOKS = ("act", "learning_rewards", "policy_sign", "adversary_step", "observe")
+_ALL_ATTACK_HOOKS = attack_contract.HOOKS
+_NO_CHANNEL_HOOKS = tuple(h for h in attack_contract.HOOKS if h != "emit")  # no incentives
 
 for _definition in (
     LearnerDef(
@@ -33,7 +36,7 @@ for _definition in (
         lio.evaluate,
         lio.acting,
         attack_hooks=_ALL_ATTACK_HOOKS,
-        defense_hooks=("acting_epsilon", "learning_incentives", "after_policy_step"),
+        defense_hooks=defense_contract.HOOKS,
         has_incentives=True,
     ),
     LearnerDef(
@@ -72,8 +75,6 @@ def get(name: str) -> LearnerDef:
 
 def default_config(name: str, env_id: str):
     """Learner `name`'s config on environment `env_id` (its declared defaults applied)."""
-    from pimbot import envs
-
     return get(name).default_config(envs.spec(env_id))
 
 
