@@ -4,7 +4,7 @@
         [--core 0] [--only lio reciprocator] [--rounds 1] [--json OUT]
         [--lio-venv DIR] [--reciprocator-venv DIR] [--pimbot-python PY] [--pimbot-src DIR]
         [--lio-iterations 1000] [--lio-warmup 100] [--pimbot-lio-seeds 1 10]
-        [--rec-updates 12] [--rec-warmup 3] [--rec-presets original defaults]
+        [--rec-updates 12] [--rec-warmup 3] [--rec-presets original general]
         [--rec-hp NAME=VALUE ...]
 
 Run `setup_lio.sh` and `setup_reciprocator.sh` first (same checkouts, same venv
@@ -18,8 +18,10 @@ process started as `taskset -c CORE ...`, one after the other:
 (c) original Reciprocator, 2-player IPD, 2048 games × 32 steps:
     `time_original_reciprocator.py` in the torch venv — s per update;
 (d) pimbot Reciprocator at that batch: `time_pimbot.py reciprocator --preset P`
-    for each P of --rec-presets (`original`: the original agent's width-2 policy and
-    one-step grudge plus --rec-hp; `defaults`: pimbot's defaults plus --rec-hp).
+    for each P of --rec-presets (`original`: the original's IPD agent — width-2
+    policy, exact VoI, one-step grudge; `general`: pimbot's general agent — 64×64
+    networks, learned VoI; `defaults`: this version's ipd-v0 defaults), each with
+    --rec-hp added; only hyperparameters this pimbot version has are passed.
 
 The table gives each figure by wall time and by process CPU time (less distorted
 when the core is shared) and the ratio pimbot / original per core (LIO: seed-
@@ -103,8 +105,8 @@ def main() -> None:
     p.add_argument(
         "--rec-presets",
         nargs="+",
-        choices=["original", "defaults"],
-        default=["original", "defaults"],
+        choices=["original", "general", "defaults"],
+        default=["original", "general"],
     )
     p.add_argument("--rec-hp", nargs="*", default=[], metavar="NAME=VALUE")
     p.add_argument("--pimbot-rec-chunks", type=int, default=3)

@@ -22,12 +22,14 @@ median over chunks 2…n: less distorted than wall time when the core is shared.
   (training's chunk) with an evaluation every 100 iterations as in training.
 * `reciprocator`: `ipd-v0` at the original's batch, 2048 parallel games × 32 steps
   per update (`num_envs=2048`, `max_steps=32`), one seed; an evaluation after each
-  chunk (`eval_period` = the chunk). `--preset original` adds the original IPD
-  agent's settings that pimbot has as hyperparameters and that exist in this
-  version's `ReciprocatorConfig` (width-2 policy: `policy_hidden=2`, the original's
-  one-step grudge); `--preset defaults` keeps pimbot's defaults (64×64 networks,
-  learned VoI models). `--hp NAME=VALUE` adds or overrides any hyperparameter (for
-  a fast path added later, say). The hyperparameters used are printed.
+  chunk (`eval_period` = the chunk). `--preset original` asks for the original IPD
+  agent (width-2 policy, exact tabular VoI, one-step grudge), `--preset general`
+  for pimbot's general agent (64×64 networks, learned VoI models, accumulated
+  balance), `--preset defaults` for this version's defaults on ipd-v0; of each
+  preset only the hyperparameters that exist in this version's `ReciprocatorConfig`
+  are passed (see PRESETS), so the script runs on older and newer versions alike.
+  `--hp NAME=VALUE` adds or overrides any hyperparameter. The hyperparameters given
+  and the learner config they resolve to are printed.
 
 It prints one line `PIMBOT_RESULT {json}`.
 """
@@ -54,7 +56,27 @@ from pimbot.experiment import runner  # noqa: E402
 from pimbot.experiment.config import RunConfig, resolve  # noqa: E402
 
 MARKER = "PIMBOT_RESULT "
-ORIGINAL_IPD_HPARAMS = {"policy_hidden": "2", "original_one_step_grudge": "true"}
+# Presets: the hyperparameters that express an agent, as names of pimbot versions old and
+# new; only those that exist in the running version's ReciprocatorConfig are passed.
+PRESETS = {
+    # the original code's IPD agent: width-2 policy, exact tabular VoI, one-step grudge
+    "original": {
+        "policy_hidden": "2",
+        "voi": "exact",
+        "grudge": "one_step",
+        "original_one_step_grudge": "true",
+    },
+    # pimbot's general agent: 64x64 networks, learned VoI models, accumulated balance
+    "general": {
+        "policy_hidden": "64,64",
+        "voi_hidden": "64,64",
+        "voi": "learned",
+        "grudge": "accumulated",
+        "original_one_step_grudge": "false",
+    },
+    # whatever this version's defaults for ipd-v0 are
+    "defaults": {},
+}
 
 
 def timed_train(run: RunConfig, chunk_iterations: int) -> dict:
@@ -117,8 +139,7 @@ def lio(args: argparse.Namespace) -> dict:
 def reciprocator(args: argparse.Namespace) -> dict:
     fields = {f.name for f in dataclasses.fields(learners.get("reciprocator").config_cls)}
     hparams = {"num_envs": "2048"}
-    if args.preset == "original":
-        hparams.update({k: v for k, v in ORIGINAL_IPD_HPARAMS.items() if k in fields})
+    hparams.update({k: v for k, v in PRESETS[args.preset].items() if k in fields})
     for pair in args.hp:
         name, _, value = pair.partition("=")
         hparams[name.strip().replace("-", "_")] = value.strip()
@@ -156,7 +177,7 @@ def main() -> None:
     p = sub.add_parser("reciprocator")
     p.add_argument("--updates-per-chunk", type=int, default=4)
     p.add_argument("--chunks", type=int, default=3)
-    p.add_argument("--preset", choices=["original", "defaults"], default="original")
+    p.add_argument("--preset", choices=sorted(PRESETS), default="original")
     p.add_argument("--hp", nargs="*", default=[], metavar="NAME=VALUE")
     args = parser.parse_args()
     out = lio(args) if args.case == "lio" else reciprocator(args)
