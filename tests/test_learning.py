@@ -38,12 +38,11 @@ def test_lio_cooperates_in_the_prisoners_dilemma(tmp_path):
     assert (cooperation >= 0.8).sum() >= 3, cooperation
 
 
-def test_lio_with_the_originals_shared_incentive_updates_solves_escape_room_4_2(tmp_path):
+def test_lio_with_the_default_shared_incentive_updates_solves_escape_room_4_2(tmp_path):
     run = RunConfig(
         env_id="escape_room-v0",
         env_params=(("min_at_lever", 2), ("n_agents", 4)),
         learner="lio",
-        hparams=(("original_shared_incentive_updates", "true"),),
         seeds=4,
         iterations=10_000,
     )

@@ -5,9 +5,11 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 import pytest
 
 from pimbot import envs, learners, nets
+from pimbot.envs.core import InvalidParameter
 from pimbot.learners import lio, pg
 from pimbot.rollout import discounted_returns, rollout
 
@@ -186,12 +188,12 @@ def test_incentives_respect_range_and_mask():
 
 
 def test_each_giver_updates_only_its_own_incentive_net():
-    """The original's N ≥ 3 quirk is not copied: giver i's step moves only η_i.
+    """With "own" updates giver i's step moves only η_i.
 
     With the meta step alone (cost off), the change in η_j (j ≠ i) when giver i
     is zeroed out must equal the change without it — i.e. rows are independent.
     """
-    cfg = dataclasses.replace(CFG, lr_cost=0.0)
+    cfg = dataclasses.replace(CFG, lr_cost=0.0, incentive_updates="own")
     state = lio.init(jax.random.PRNGKey(5), ENV, cfg)
     new_state, _ = jax.jit(lio.update, static_argnums=(1, 2))(state, ENV, cfg)
     moved = [
@@ -206,15 +208,101 @@ def test_each_giver_updates_only_its_own_incentive_net():
     assert all(moved)
 
 
-def test_shared_incentive_variant_equals_default_for_two_agents():
-    env = envs.make("escape_room-v0")
-    cfg = learners.default_config("lio", "escape_room-v0")
-    shared = dataclasses.replace(cfg, original_shared_incentive_updates=True)
-    key = jax.random.PRNGKey(9)
-    a, _ = jax.jit(lio.update, static_argnums=(1, 2))(lio.init(key, env, cfg), env, cfg)
-    b, _ = jax.jit(lio.update, static_argnums=(1, 2))(lio.init(key, env, shared), env, shared)
-    for x, y in zip(jax.tree.leaves(a.incentive), jax.tree.leaves(b.incentive), strict=True):
-        np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=1e-6, atol=1e-7)
+def _one_by_one_reference(env, cfg, givers, state, traj, new_traj, eps):
+    """The original's shared updates written plainly: a Python loop over givers, one Adam
+    and one cost Adam per giver, jax.grad of each surrogate w.r.t. every η and θ."""
+    meta, cost = optax.adam(cfg.lr_incentive), optax.adam(cfg.lr_cost)
+    eta, theta = state.incentive, state.policy
+    for giver in givers:
+        grads = jax.grad(lio.giver_objective, argnums=(0, 4))(
+            eta, jnp.int32(giver), env, cfg, theta, traj, eps, new_traj
+        )
+        opt = jax.tree.map(lambda x: x[giver], state.incentive_opt)  # noqa: B023
+        updates, _ = meta.update(jax.tree.map(jnp.negative, grads), opt)
+        cost_grad = jax.grad(lio.incentive_cost)(eta, env, cfg, traj)
+        own = jax.tree.map(lambda g: g[giver], cost_grad)  # noqa: B023
+        cost_updates, _ = cost.update(own, jax.tree.map(lambda x: x[giver], state.cost_opt))  # noqa: B023
+        new_eta, theta = optax.apply_updates((eta, theta), updates)
+        eta = jax.tree.map(
+            lambda e, u: e.at[giver].set(e[giver] + u),  # noqa: B023
+            new_eta,
+            cost_updates,
+        )
+    return eta
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_shared_updates_one_by_one_equal_the_plain_reference(n):
+    """`giver_turns` equals the plain loop; for N = 2 both equal the all-at-once own
+    updates (giver i's surrogate depends on nothing the other giver's step moves)."""
+    env = envs.make("escape_room-v0", n_agents=n, min_at_lever=1)
+    cfg = dataclasses.replace(CFG, incentive_updates="shared")
+    state = lio.init(jax.random.PRNGKey(11), env, cfg)
+    if n == 2:  # the default path for N = 2 is all at once: build per-giver states
+        state = state.replace(
+            incentive_opt=jax.vmap(
+                lambda _: optax.adam(cfg.lr_incentive).init((state.incentive, state.policy))
+            )(jnp.arange(n)),
+            cost_opt=jax.vmap(optax.adam(cfg.lr_cost).init)(state.incentive),
+        )
+    pm, im = lio._modules(env, cfg)
+    eps = jnp.float32(0.3)
+    give = lio.give_fn(im, state.incentive, env.num_actions, cfg.incentive_max)
+    k1, k2 = jax.random.split(jax.random.PRNGKey(12))
+    traj = rollout(env, k1, pg.act_fn(pm, state.policy, eps), give)
+    new_policy = lio.recipient_update(env, cfg, state.policy, state.incentive, traj, eps)
+    new_traj = rollout(env, k2, pg.act_fn(pm, new_policy, eps), give)
+    givers = list(range(n))
+
+    @jax.jit
+    def turns(state, traj, new_traj):
+        opts = (state.incentive_opt, state.cost_opt)
+        return lio.giver_turns(
+            env, cfg, givers, None, state.policy, state.incentive, opts, traj, eps, new_traj
+        )[0]
+
+    fast = turns(state, traj, new_traj)
+    slow = jax.jit(lambda s, t, u: _one_by_one_reference(env, cfg, givers, s, t, u, eps))(
+        state, traj, new_traj
+    )
+    for a, b in zip(jax.tree.leaves(fast), jax.tree.leaves(slow), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-7)
+    if n == 2:
+        own = dataclasses.replace(cfg, incentive_updates="own")
+        fresh = lio.init(jax.random.PRNGKey(11), env, own)
+        grads = lio.meta_gradients(env, own, fresh.policy, fresh.incentive, traj, eps, new_traj)
+        expected, _ = lio.meta_step(own, fresh.incentive, fresh.incentive_opt, grads)
+        cost_grad = jax.grad(lio.incentive_cost)(fresh.incentive, env, own, traj)
+        cost_updates, _ = optax.adam(own.lr_cost).update(cost_grad, fresh.cost_opt)
+        expected = optax.apply_updates(expected, cost_updates)
+        for a, b in zip(jax.tree.leaves(fast), jax.tree.leaves(expected), strict=True):
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-7)
+
+
+def test_shared_updates_move_the_other_givers_incentives_for_three_agents():
+    """One turn of giver 0 (cost off) moves η_1 and η_2 as well; "own" would not."""
+    cfg = dataclasses.replace(CFG, lr_cost=0.0)
+    state, traj, new_traj, eps = _fixed_trajectories(seed=7)
+    opts = (state.incentive_opt, state.cost_opt)
+    moved, _ = lio.giver_turns(
+        ENV, cfg, [0], None, state.policy, state.incentive, opts, traj, eps, new_traj
+    )
+    for agent in range(ENV.num_agents):
+        change = max(
+            float(jnp.abs(a[agent] - b[agent]).max())
+            for a, b in zip(jax.tree.leaves(moved), jax.tree.leaves(state.incentive), strict=True)
+        )
+        assert change > 0, agent
+    frozen, _ = lio.giver_turns(
+        ENV, cfg, [0], 1, state.policy, state.incentive, opts, traj, eps, new_traj
+    )
+    for a, b in zip(jax.tree.leaves(frozen), jax.tree.leaves(state.incentive), strict=True):
+        np.testing.assert_array_equal(np.asarray(a[1]), np.asarray(b[1]))
+
+
+def test_incentive_updates_option_is_checked():
+    with pytest.raises(InvalidParameter, match="incentive_updates"):
+        dataclasses.replace(CFG, incentive_updates="simultaneous")
 
 
 def test_fast_meta_gradients_equal_the_per_giver_reference():
@@ -225,17 +313,3 @@ def test_fast_meta_gradients_equal_the_per_giver_reference():
     slow = jax.jit(lio.meta_gradients_reference, static_argnums=(0, 1))(*args)
     for a, b in zip(jax.tree.leaves(fast), jax.tree.leaves(slow), strict=True):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-6)
-
-
-def test_shared_variant_gradient_rows_are_each_givers_full_gradient():
-    cfg = dataclasses.replace(CFG, original_shared_incentive_updates=True)
-    state, traj, new_traj, eps = _fixed_trajectories(seed=7)
-    grads = jax.jit(lio.meta_gradients, static_argnums=(0, 1))(
-        ENV, cfg, state.policy, state.incentive, traj, eps, new_traj
-    )
-    for giver in range(ENV.num_agents):
-        expected = jax.jit(jax.grad(lio.giver_objective), static_argnums=(2, 3))(
-            state.incentive, jnp.int32(giver), ENV, cfg, state.policy, traj, eps, new_traj
-        )
-        for a, b in zip(jax.tree.leaves(grads), jax.tree.leaves(expected), strict=True):
-            np.testing.assert_allclose(np.asarray(a[giver]), np.asarray(b), rtol=1e-4, atol=1e-6)

@@ -43,7 +43,7 @@ def write_run(root: Path, name: str, attack: str | None, params=None, steps: boo
             "first_seed": 0,
             "iterations": ITERATIONS,
             "learner": "lio",
-            "learner_config": {"original_shared_incentive_updates": False},
+            "learner_config": {"incentive_updates": "shared"},
             "seeds": SEEDS,
         },
         "run_config": {"attack_params": [], "hparams": [], "defenses": []},

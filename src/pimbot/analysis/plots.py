@@ -124,9 +124,23 @@ def run_label(run_dir: Path) -> str:
     first, count = config["identity"]["first_seed"], config["identity"]["seeds"]
     if first:
         label += f" seeds {first}–{first + count - 1}"
-    if config["identity"]["learner_config"].get("original_shared_incentive_updates"):
-        label += " shared-η"
+    if incentive_updates(config) == "own":
+        label += " own-η"
     return label
+
+
+def incentive_updates(config: dict[str, Any]) -> str | None:
+    """ "shared" or "own": how a LIO run's givers updated incentives where the two differ
+    (N ≥ 3); None otherwise. Run directories written before the option had a name carry
+    `original_shared_incentive_updates` (true = shared, false = own)."""
+    learner_config = config["identity"].get("learner_config", {})
+    if config.get("env", {}).get("num_agents", 0) < 3:
+        return None
+    if "incentive_updates" in learner_config:
+        return learner_config["incentive_updates"]
+    if "original_shared_incentive_updates" in learner_config:
+        return "shared" if learner_config["original_shared_incentive_updates"] else "own"
+    return None
 
 
 def plot_runs(run_dirs: list[Path], out: Path, columns=("eval/success", "eval/return_ratio")):

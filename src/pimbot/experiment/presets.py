@@ -21,8 +21,9 @@ from pimbot.experiment.config import DEFAULT_EVAL, FALLBACK_EVAL
 from pimbot.experiment.jobs import Job
 from pimbot.profiling.decision_loop import ProfileConfig
 
-SHARED_UPDATES = (("original_shared_incentive_updates", True),)
-"""N ≥ 3 LIO runs use the original code's shared incentive updates (README, Decisions)."""
+SHARED_UPDATES = (("incentive_updates", "shared"),)
+"""N ≥ 3 LIO runs use the original code's shared incentive updates (the default, named
+explicitly where it matters; README, Decisions)."""
 
 
 @dataclasses.dataclass(frozen=True)

@@ -43,9 +43,12 @@ from pimbot.contracts.defense import (
     PolicyStepContext,
 )
 from pimbot.contracts.learner import Actor
-from pimbot.envs.core import Env
+from pimbot.envs.core import Env, InvalidParameter
 from pimbot.learners.pg import act_fn, epsilon_at, evaluate_actor, policy_step, reinforce_loss
 from pimbot.rollout import Trajectory, discounted_returns, episode_metrics, received, rollout
+
+INCENTIVE_UPDATES = ("shared", "own")
+"""The values of `LIOConfig.incentive_updates`, the default first."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,10 +78,21 @@ class LIOConfig:
     """Final ε."""
     epsilon_decay_iters: int = 1000
     """Iterations over which ε decays linearly."""
-    original_shared_incentive_updates: bool = False
-    """Reproduce the original code's N ≥ 3 behaviour: each giver's optimizer moves every
-    giver's η along its own surrogate (the original optimizer has no variable list).
-    Off by default (spec: each giver updates only its own η); same as off for N = 2."""
+    incentive_updates: str = "shared"
+    """Which parameters a giver's incentive (meta-gradient) step moves. "shared" (the
+    original code's: each giver's optimizer has no variable list, so its Adam step along its
+    own surrogate moves everything the surrogate depends on — every other giver's η, and the
+    recipients' current policies until θ ← θ̂ replaces them — one giver after another, each
+    seeing what the previous givers moved). "own": each giver moves only its own η_i, all at
+    once. The two are identical for N = 2 (giver i's surrogate then depends on no parameter
+    another giver's step moves); they differ for N ≥ 3."""
+
+    def __post_init__(self):
+        if self.incentive_updates not in INCENTIVE_UPDATES:
+            raise InvalidParameter(
+                f"incentive_updates: must be one of {', '.join(INCENTIVE_UPDATES)}, "
+                f"got {self.incentive_updates!r}"
+            )
 
 
 @struct.dataclass
@@ -134,11 +148,21 @@ def give_fn(module: nets.MLP, incentive, num_actions: int, incentive_max: float)
     return give
 
 
-def _init_meta_opt(cfg: LIOConfig, incentive, num_agents: int):
-    optimizer = optax.adam(cfg.lr_incentive)
-    if cfg.original_shared_incentive_updates:
-        return jax.vmap(lambda _: optimizer.init(incentive))(jnp.arange(num_agents))
-    return optimizer.init(incentive)
+def one_by_one(cfg: LIOConfig, num_agents: int) -> bool:
+    """Whether the givers' incentive steps are taken one giver after another ("shared"
+    updates with N ≥ 3); otherwise all at once, each on its own η (for N = 2 the same)."""
+    return cfg.incentive_updates == "shared" and num_agents >= 3
+
+
+def _init_optimizers(cfg: LIOConfig, policy, incentive, num_agents: int):
+    """(meta-gradient, cost) optimizer states. One by one, as the original: one Adam per
+    giver over every η and θ (its surrogate's parameters) and one cost Adam per giver over
+    its own η_i (leaves [N giver, ...]); otherwise one Adam each over the stacked η."""
+    meta, cost = optax.adam(cfg.lr_incentive), optax.adam(cfg.lr_cost)
+    if one_by_one(cfg, num_agents):
+        per_giver = jax.vmap(lambda _: meta.init((incentive, policy)))(jnp.arange(num_agents))
+        return per_giver, jax.vmap(cost.init)(incentive)
+    return meta.init(incentive), cost.init(incentive)
 
 
 def init(
@@ -155,11 +179,12 @@ def init(
     in_dim = env.obs_dim + (n - 1) * env.num_actions
     incentive = nets.init_stacked(incentive_module, incentive_key, n, in_dim)
     a = attack.adversary
+    incentive_opt, cost_opt = _init_optimizers(cfg, policy, incentive, n)
     return LIOState(
         policy=policy,
         incentive=incentive,
-        incentive_opt=_init_meta_opt(cfg, incentive, n),
-        cost_opt=optax.adam(cfg.lr_cost).init(incentive),
+        incentive_opt=incentive_opt,
+        cost_opt=cost_opt,
         attack_state=attack.init_state(
             attack_key(key), n, AgentParams(agent_row(policy, a), agent_row(incentive, a))
         ),
@@ -297,9 +322,8 @@ def meta_gradients(env, cfg, policy, incentive, traj, epsilon, new_traj):
     giver's gradient — equal to `jax.grad(own_giver_objective)` per giver (tested),
     at a fraction of the cost of differentiating N copies of the whole update.
 
-    Returns leaves [N, ...] (giver i's gradient w.r.t. η_i), or, with
-    `cfg.original_shared_incentive_updates`, [N giver, N owner, ...] (giver i's
-    gradient w.r.t. every η_k, as the original's unrestricted optimizers take it).
+    Returns leaves [N, ...] (giver i's gradient w.r.t. η_i): the "own" updates, and the
+    "shared" ones for N = 2 (`one_by_one` takes the shared ones for N ≥ 3).
     """
     pullbacks = recipient_pullbacks(env, cfg, policy, incentive, traj, epsilon, new_traj)
     return meta_gradients_from(env, cfg, pullbacks, traj, new_traj)
@@ -314,10 +338,6 @@ def meta_gradients_from(env, cfg, pullbacks, traj, new_traj):
     others = 1.0 - jnp.eye(n)
     cotangents = env_returns.T[:, :, None] * others[:, None, :]  # [giver, T, recipient]
     d_received = jax.vmap(pull_recipients)(cotangents)  # dJ_i / d received_j(t)
-    if cfg.original_shared_incentive_updates:
-        # Giver i's objective pulled back to every giver k's incentives u[t, k, j].
-        per_giver = jnp.broadcast_to(d_received[:, :, None, :], (n,) + traj.incentives.shape)
-        return jax.vmap(pull_incentives)(per_giver)
     # Giver k's own objective only, on its own row u[t, k, :].
     return pull_incentives(jnp.swapaxes(d_received, 0, 1))
 
@@ -335,15 +355,61 @@ def meta_gradients_reference(env, cfg, policy, incentive, traj, epsilon, new_tra
 
 
 def meta_step(cfg, incentive, opt_state, grads):
-    """Adam ascent on the surrogates; one Adam state per giver in the shared variant."""
-    optimizer = optax.adam(cfg.lr_incentive)
+    """Adam ascent of every giver on its own surrogate, all at once."""
     ascent = jax.tree.map(jnp.negative, grads)  # Adam minimises
-    if cfg.original_shared_incentive_updates:
-        updates, opt_state = jax.vmap(optimizer.update)(ascent, opt_state)
-        updates = jax.tree.map(lambda u: u.sum(axis=0), updates)
-    else:
-        updates, opt_state = optimizer.update(ascent, opt_state)
+    updates, opt_state = optax.adam(cfg.lr_incentive).update(ascent, opt_state)
     return optax.apply_updates(incentive, updates), opt_state
+
+
+def giver_cost(own_incentive, giver, env, cfg, traj: Trajectory) -> jax.Array:
+    """Giver i's term of `incentive_cost`, a function of its own η_i."""
+    _, incentive_module = _modules(env, cfg)
+    x = incentive_input(traj.obs, traj.actions, env.num_actions)[:, giver]  # [T, D]
+    out = jax.nn.sigmoid(incentive_module.apply(own_incentive, x))
+    out = out * (1.0 - jax.nn.one_hot(giver, env.num_agents))
+    discount = cfg.gamma ** jnp.arange(traj.valid.shape[0]) * traj.valid
+    return jnp.sum(discount[:, None] * out)
+
+
+def giver_turns(env, cfg, givers, frozen, policy, incentive, opts, traj, epsilon, new_traj):
+    """The "shared" incentive updates for N ≥ 3, one giver after another (the original's).
+
+    Giver i's Adam step ascends its surrogate (`giver_objective`) in every parameter it
+    depends on — every giver's η and the recipients' current θ — and its cost step
+    descends its own cost term, both gradients taken where the previous givers left the
+    parameters. The moved θ only affect the later givers' gradients: θ ← θ̂ follows.
+
+    Args:
+        givers: the givers taking a turn, in order (static).
+        frozen: a giver whose η no step may move (a learning attack's adversary), or None.
+        opts: (per-giver meta states, per-giver cost states), leaves [N giver, ...].
+    Returns:
+        (η, opts).
+    """
+    meta, cost = optax.adam(cfg.lr_incentive), optax.adam(cfg.lr_cost)
+
+    def turn(carry, giver):
+        incentive, policy, (meta_opt, cost_opt) = carry
+        grads = jax.grad(giver_objective, argnums=(0, 4))(
+            incentive, giver, env, cfg, policy, traj, epsilon, new_traj
+        )
+        ascent = jax.tree.map(jnp.negative, grads)  # Adam minimises
+        updates, own_meta = meta.update(ascent, agent_row(meta_opt, giver))
+        meta_opt = with_agent_row(meta_opt, giver, own_meta)
+        moved, policy_moved = optax.apply_updates((incentive, policy), updates)
+        if cfg.lr_cost > 0:
+            cost_grad = jax.grad(giver_cost)(agent_row(incentive, giver), giver, env, cfg, traj)
+            cost_updates, own_cost = cost.update(cost_grad, agent_row(cost_opt, giver))
+            cost_opt = with_agent_row(cost_opt, giver, own_cost)
+            own = optax.apply_updates(agent_row(moved, giver), cost_updates)
+            moved = with_agent_row(moved, giver, own)
+        if frozen is not None:
+            moved = with_agent_row(moved, frozen, agent_row(incentive, frozen))
+        return (moved, policy_moved, (meta_opt, cost_opt)), None
+
+    carry = (incentive, policy, opts)
+    (incentive, _, opts), _ = jax.lax.scan(turn, carry, jnp.asarray(givers, jnp.int32))
+    return incentive, opts
 
 
 def incentive_cost(incentive, env, cfg, traj: Trajectory) -> jax.Array:
@@ -437,16 +503,38 @@ def update(
 
     # 5. every giver's meta-gradient step on η through the recipients' updates, and the
     #    separate cost step
-    pullbacks = recipient_pullbacks(
-        env, cfg, state.policy, state.incentive, traj, epsilon, new_traj
-    )
-    meta_grad = meta_gradients_from(env, cfg, pullbacks, traj, new_traj)
-    incentive, incentive_opt = meta_step(cfg, state.incentive, state.incentive_opt, meta_grad)
-    cost_opt = state.cost_opt
-    if cfg.lr_cost > 0:
-        cost_grad = jax.grad(incentive_cost)(state.incentive, env, cfg, traj)
-        cost_updates, cost_opt = optax.adam(cfg.lr_cost).update(cost_grad, state.cost_opt)
-        incentive = optax.apply_updates(incentive, cost_updates)
+    learning_attack = "adversary_step" in attack.hooks
+    pullbacks = None
+    if one_by_one(cfg, env.num_agents):
+        a = attack.adversary
+        givers = [i for i in range(env.num_agents) if not (learning_attack and i == a)]
+        incentive, (incentive_opt, cost_opt) = giver_turns(
+            env,
+            cfg,
+            givers,
+            a if learning_attack else None,
+            state.policy,
+            state.incentive,
+            (state.incentive_opt, state.cost_opt),
+            traj,
+            epsilon,
+            new_traj,
+        )
+        if learning_attack:
+            pullbacks = recipient_pullbacks(
+                env, cfg, state.policy, state.incentive, traj, epsilon, new_traj
+            )
+    else:
+        pullbacks = recipient_pullbacks(
+            env, cfg, state.policy, state.incentive, traj, epsilon, new_traj
+        )
+        meta_grad = meta_gradients_from(env, cfg, pullbacks, traj, new_traj)
+        incentive, incentive_opt = meta_step(cfg, state.incentive, state.incentive_opt, meta_grad)
+        cost_opt = state.cost_opt
+        if cfg.lr_cost > 0:
+            cost_grad = jax.grad(incentive_cost)(state.incentive, env, cfg, traj)
+            cost_updates, cost_opt = optax.adam(cfg.lr_cost).update(cost_grad, state.cost_opt)
+            incentive = optax.apply_updates(incentive, cost_updates)
 
     success = episode_metrics(env, traj)["success"]
     metrics = {"train/epsilon": schedule_epsilon, "train/success": success}
@@ -455,7 +543,7 @@ def update(
 
     # 6. a learning attack replaces the adversary's update (attack hook: adversary_step)
     attack_state = state.attack_state
-    if "adversary_step" in attack.hooks:
+    if learning_attack:
         view = adversary_view(
             env,
             cfg,

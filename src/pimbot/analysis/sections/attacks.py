@@ -23,7 +23,6 @@ CLAIMS_LEARNER = "lio"
 """C1–C5 are about LIO; the group's runs of other learners go to the generic section."""
 ADMO_COLUMN = "admo/alpha_1"
 """Runs that log it are ADMO runs (Fig. 5)."""
-SHARED_UPDATES = "original_shared_incentive_updates"
 AGENT_COLOURS = ("#4d4d4d", "#1b9e77", "#7570b3", "#e6ab02", "#66a61e", "#a6761d", "#666666")
 """Per-agent lines of Fig. 2 (agents, not conditions: a palette of its own)."""
 ADVERSARY_COLOUR = "#d62728"
@@ -94,17 +93,25 @@ def intro(runs: list[RunRecord]) -> str:
     """What the numbers are, with the counts read from the runs."""
     attacked = sorted({r.adversary for r in runs if r.attack is not None})
     adversary = ", ".join(f"agent {a}" for a in attacked) or "none (no attacked run)"
-    shared = sorted(
-        {r.env for r in runs if r.identity["learner_config"].get(SHARED_UPDATES)}, key=natural_key
-    )
+    by_updates = {
+        kind: sorted(
+            {r.env for r in runs if plots.incentive_updates(r.config) == kind}, key=natural_key
+        )
+        for kind in ("shared", "own")
+    }
     text = (
         f"Final = mean of the last {final_window_text(runs)} per seed, [95 % bootstrap CI "
         f"over {seeds_text(runs)}]; Δ = attacked − clean with a bootstrap CI. Adversary = "
         f"{adversary} (the runs' attack parameters); margin = its env return minus the mean "
         "of the others'."
     )
-    if shared:
-        text += f" {', '.join(shared)} runs use the original shared incentive updates."
+    if by_updates["shared"]:
+        text += (
+            f" {', '.join(by_updates['shared'])} runs use the original code's shared incentive "
+            "updates (each giver's step also moves the other givers' incentive nets)."
+        )
+    if by_updates["own"]:
+        text += f" {', '.join(by_updates['own'])} runs: each giver updates only its own."
     return text
 
 
