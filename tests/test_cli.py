@@ -1,11 +1,14 @@
 """The command line: bad input gives one clear line and exit 2 with nothing written."""
 
+import csv
+import json
+
 import pytest
 
 from pimbot import cli
 
 BAD = [
-    (["train", "nope-v0", "--out", "{d}"], "env_id: unknown environment 'nope-v0'"),
+    (["train", "nope-v0", "--out", "{d}"], "env_id: unknown value 'nope-v0'; allowed: escape"),
     (["train", "escape_room-v0", "min_at_lever=2", "--out", "{d}"], "min_at_lever"),
     (["train", "escape_room-v0", "n_agents=4", "min_at_lever=4", "--out", "{d}"], "[1, 3]"),
     (["train", "escape_room-v0", "--seeds", "0", "--out", "{d}"], "seeds: must be an integer ≥ 1"),
@@ -13,14 +16,14 @@ BAD = [
     (["train", "escape_room-v0", "--iterations", "ten", "--out", "{d}"], "iterations"),
     (["train", "escape_room-v0", "n_agents=two", "--out", "{d}"], "n_agents: must be an integer"),
     (["train", "escape_room-v0", "colour=red", "--out", "{d}"], "colour: not a parameter"),
-    (["train", "escape_room-v0", "--learner", "dqn", "--out", "{d}"], "learner: unknown learner"),
+    (["train", "escape_room-v0", "--learner", "dqn", "--out", "{d}"], "learner: unknown value"),
     (["train", "escape_room-v0", "--hp", "lr_policy=fast", "--out", "{d}"], "lr_policy: must be"),
     (["train", "escape_room-v0", "--hp", "momentum=0.9", "--out", "{d}"], "momentum: not a"),
     (["train", "ipd-v0", "n_players=1", "--out", "{d}"], "n_players"),
     (["train", "escape_room-v0", "--iterations", "150", "--out", "{d}"], "multiple of eval_period"),
     (["train", "escape_room-v0"], "--out"),
-    (["frobnicate"], "invalid choice"),
-    (["train", "escape_room-v0", "--attack", "nope", "--out", "{d}"], "attack: unknown attack"),
+    (["frobnicate"], "command: unknown command 'frobnicate'; allowed: train"),
+    (["train", "escape_room-v0", "--attack", "nope", "--out", "{d}"], "attack: unknown value"),
     (
         ["train", "escape_room-v0", "--attack", "admo", "--ap", "adversary=2", "--out", "{d}"],
         "adversary: must be an agent index in [0, 1]",
@@ -110,14 +113,7 @@ def test_train_then_rerun_says_finished(tmp_path, capsys):
     assert "already finished" in capsys.readouterr().out
 
 
-def _command_paths(parser, prefix=()):
-    """Every command and subcommand of the parser, e.g. ("robot", "eval")."""
-    for name, sub in parser.subcommands.items():
-        yield (*prefix, name)
-        yield from _command_paths(sub, (*prefix, name))
-
-
-COMMANDS = list(_command_paths(cli.build_parser()))
+COMMANDS = list(cli.command_paths())
 
 
 def test_every_command_is_found():
@@ -126,7 +122,18 @@ def test_every_command_is_found():
     assert ("robot", "eval") in COMMANDS and ("audit", "verify") in COMMANDS
 
 
-@pytest.mark.parametrize("path", [(), *COMMANDS], ids=lambda p: " ".join(p) or "pimbot")
+GROUPS = [(), ("audit",), ("robot",)]
+
+
+@pytest.mark.parametrize("path", GROUPS, ids=lambda p: " ".join(p) or "pimbot")
+def test_help_of_a_command_group_lists_its_commands(path, capsys):
+    assert cli.main([*path, "--help"]) == 0
+    captured = capsys.readouterr()
+    assert captured.out.startswith("usage: pimbot") and not captured.err
+    assert "commands:" in captured.out
+
+
+@pytest.mark.parametrize("path", [p for p in COMMANDS if p not in GROUPS], ids=" ".join)
 def test_help_of_every_command_has_no_traceback(path, capsys):
     with pytest.raises(SystemExit) as exit_info:
         cli.main([*path, "--help"])
@@ -134,6 +141,7 @@ def test_help_of_every_command_has_no_traceback(path, capsys):
     captured = capsys.readouterr()
     assert captured.out.startswith("usage: pimbot") and not captured.err
     assert "--plugin MODULE" in captured.out  # every command takes --plugin
+    assert "--config FILE" in captured.out
 
 
 def test_bare_pimbot_prints_the_commands(capsys):
@@ -150,3 +158,118 @@ def test_version(capsys):
         cli.main(["--version"])
     assert exit_info.value.code == 0
     assert capsys.readouterr().out.strip() == f"pimbot {pimbot.__version__}"
+
+
+def test_help_shows_docstrings_defaults_and_allowed_values(capsys):
+    with pytest.raises(SystemExit):
+        cli.main(["train", "--help"])
+    text = capsys.readouterr().out
+    assert "Number of independent seeds S" in text and "(default: 10)" in text
+    assert "{lio," in text and "reciprocator" in text  # the registry's names
+    assert "fake_incentive" in text and "incentive_guard" in text
+    assert "--from RUN_DIR" in text and "--ap NAME=VALUE" in text
+
+
+def test_listings_show_each_parameters_docstring(capsys):
+    assert cli.main(["learners"]) == 0
+    assert "SGD learning rate β of the policy step." in capsys.readouterr().out
+    assert cli.main(["attacks"]) == 0
+    assert "alternate bypass and normal play" in capsys.readouterr().out
+    assert cli.main(["envs"]) == 0
+    assert "Agents needed at the lever to open the door" in capsys.readouterr().out
+
+
+TOML = """
+env_id = "escape_room-v0"
+learner = "pg"
+seeds = 3
+quiet = true
+attack = "bypass"
+defense = ["exploration_floor"]
+[env_params]
+n_agents = 3
+[hp]
+lr_policy = 0.002
+[attack_param]
+toggle_period = 5
+[defense_param.exploration_floor]
+min_epsilon = 0.2
+"""
+
+YAML = """
+env_id: escape_room-v0
+learner: pg
+seeds: 3
+quiet: true
+attack: bypass
+defense: [exploration_floor]
+env_params: {n_agents: 3}
+hp: {lr_policy: 0.002}
+attack_param: {toggle_period: 5}
+defense_param: {exploration_floor: {min_epsilon: 0.2}}
+"""
+
+
+@pytest.mark.parametrize(("suffix", "text"), [(".toml", TOML), (".yaml", YAML)])
+def test_config_file_gives_the_options_and_the_command_line_overrides_it(tmp_path, suffix, text):
+    config = tmp_path / f"train{suffix}"
+    config.write_text(text)
+    path, command = cli.parse(["train", "--config", str(config), "--seeds", "5", "--out", "d"])
+    assert path == ("train",)
+    assert (command.env_id, command.learner, command.seeds, command.quiet) == (
+        "escape_room-v0",
+        "pg",
+        5,
+        True,
+    )
+    assert command.env_params == ("n_agents=3",) and command.hp == ("lr_policy=0.002",)
+    assert command.attack == "bypass" and command.attack_param == ("toggle_period=5",)
+    assert command.defense == ("exploration_floor",)
+    assert command.defense_param == ("exploration_floor.min_epsilon=0.2",)
+
+
+CONFIG_BAD = [
+    ("missing.toml", None, "config: {d}/missing.toml is not a file"),
+    ("c.toml", "seeds = 'two'", "seeds: {d}/c.toml: must be an integer, got 'two'"),
+    ("c.toml", "colour = 1", "'colour' is not an option; allowed: plugin"),
+    ("c.toml", "learner = 'dqn'", "learner: {d}/c.toml: unknown value 'dqn'; allowed: lio"),
+    ("c.toml", "seeds = ", "config: cannot read {d}/c.toml"),
+    ("c.yaml", "- 1\n- 2", "must hold a table of options, got list"),
+    ("c.json", "{}", "must end in .toml, .yaml or .yml"),
+    ("c.toml", "seeds = 0", "seeds: must be an integer ≥ 1, got 0"),
+]
+
+
+@pytest.mark.parametrize(("name", "text", "expected"), CONFIG_BAD)
+def test_bad_config_file_is_one_line(tmp_path, capsys, name, text, expected):
+    if text is not None:
+        (tmp_path / name).write_text(text)
+    argv = ["train", "escape_room-v0", "--config", str(tmp_path / name), "--out", "x"]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert expected.format(d=tmp_path) in err and len(err.strip().splitlines()) == 1, err
+
+
+def _results(run_dir):
+    """metrics.csv without its timing columns (perf/*)."""
+    with open(run_dir / "metrics.csv") as f:
+        return [
+            {k: v for k, v in row.items() if not k.startswith("perf/")} for row in csv.DictReader(f)
+        ]
+
+
+def test_from_reruns_a_saved_run_elsewhere_or_continues_it(tmp_path, capsys):
+    first = tmp_path / "first"
+    argv = ["train", "ipd-v0", "--seeds", "2", "--iterations", "200", "--eval-period", "100"]
+    assert cli.main([*argv, "--hp", "lr_policy=0.002", "--quiet", "--out", str(first)]) == 0
+    again = tmp_path / "again"
+    assert cli.main(["train", "--from", str(first), "--out", str(again), "--quiet"]) == 0
+    read = lambda d, name: (d / name).read_text()  # noqa: E731
+    assert _results(again) == _results(first)
+    first_config, again_config = (json.loads(read(d, "config.json")) for d in (first, again))
+    assert again_config["identity"] == first_config["identity"]
+    capsys.readouterr()
+    assert cli.main(["train", "--from", str(first), "--quiet"]) == 0  # continues it: finished
+    assert "already finished" in capsys.readouterr().out
+    path, command = cli.parse(["train", "--from", str(first), "--seeds", "4", "--out", "x"])
+    assert (command.env_id, command.seeds, command.hp) == ("ipd-v0", 4, ("lr_policy=0.002",))

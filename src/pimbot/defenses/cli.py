@@ -1,9 +1,8 @@
-"""Command line of the defenses: `pimbot defenses`, `pimbot audit verify LOG`, and the
-`pimbot train` options `--defense`, `--defense-param/--dp` and `--audit-log`."""
+"""What the defense commands do: `pimbot defenses`, `pimbot audit verify LOG`, and the
+defense options of `pimbot train` (`--defense`, `--defense-param/--dp`, `--audit-log`)."""
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 from typing import Any
 
@@ -15,50 +14,14 @@ DEPLOYMENT = {
 }
 
 
-def add_parser(commands) -> None:
-    """Adds `pimbot defenses` and `pimbot audit verify LOG [--head HASH]`."""
-    commands.add_parser("defenses", help="list defenses and their parameters")
-    audit = commands.add_parser("audit", help="tamper-evident audit logs")
-    actions = audit.add_subparsers(dest="audit_command", required=True)
-    check = actions.add_parser("verify", help="verify a log (names the first bad record)")
-    check.add_argument("log", help="the JSONL audit log")
-    check.add_argument("--head", default=None, help="expected last-record hash")
-
-
-def add_train_arguments(train: argparse.ArgumentParser) -> None:
-    """The defense options of `pimbot train`."""
-    train.add_argument(
-        "--defense",
-        action="append",
-        default=[],
-        metavar="NAME",
-        help="training-time defense of the honest agents (repeatable; see `pimbot defenses`)",
-    )
-    train.add_argument(
-        "--defense-param",
-        "--dp",
-        action="append",
-        default=[],
-        metavar="[NAME.]name=value",
-        help="defense parameter (repeatable), e.g. --dp min_epsilon=0.3 "
-        "--dp health_monitor.patience=20",
-    )
-    train.add_argument(
-        "--audit-log",
-        default=None,
-        metavar="PATH",
-        help="append a hash-chained audit log",
-    )
-
-
-def run_defenses(args: argparse.Namespace) -> tuple[tuple[str, Any], ...]:
+def run_defenses(args) -> tuple[tuple[str, Any], ...]:
     """`RunConfig.defenses` from the train options (InvalidParameter on bad input)."""
     from pimbot.envs.core import InvalidParameter
     from pimbot.experiment.config import parse_defenses
 
     if args.defense_param and not args.defense:
         raise InvalidParameter("defense_param: given without --defense NAME")
-    return parse_defenses(args.defense, args.defense_param)
+    return parse_defenses(list(args.defense), list(args.defense_param))
 
 
 def chunk_logger(path: str | Path | None, run_config):
@@ -134,19 +97,19 @@ def _jsonable(value):
 
 def cmd_defenses() -> int:
     from pimbot import defenses
+    from pimbot.contracts.docs import describe
 
     for name in defenses.registered():
         cls = defenses.defense_class(name)
         doc = ((cls.__doc__ or "").strip().splitlines() or [""])[0]
         print(f"{name} [training, honest agents]: {doc}")
-        for param, default in defenses.parameters(name).items():
-            print(f"    {param} = {default!r}")
+        print("\n".join(describe(cls, defenses.parameters(name))))
     for name, text in DEPLOYMENT.items():
         print(f"{name} [deployment layer]: {text}")
     return 0
 
 
-def cmd_audit(args: argparse.Namespace) -> int:
+def cmd_audit(args) -> int:
     from pimbot.defenses.audit import verify
 
     path = Path(args.log)
@@ -157,10 +120,3 @@ def cmd_audit(args: argparse.Namespace) -> int:
     result = verify(path, head=args.head)
     print(f"{path}: {result.message}")
     return 0 if result.ok else 1
-
-
-def run(args: argparse.Namespace) -> int:
-    """Dispatch of `pimbot defenses` and `pimbot audit ...`."""
-    if args.command == "defenses":
-        return cmd_defenses()
-    return cmd_audit(args)

@@ -7,43 +7,9 @@ pimbot robot render RUN_DIR --out episode.gif|mp4 [--seed-index S] [--episode E]
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 RENDERERS = ("auto", "mujoco", "matplotlib")
-
-
-def add_parser(commands) -> None:
-    """Adds `robot` with its `eval` and `render` subcommands to the `pimbot` parser."""
-    robot = commands.add_parser(
-        "robot", help="trained Escape Room policies on TurtleBot3-sized robots in MuJoCo"
-    )
-    sub = robot.add_subparsers(dest="robot_command", required=True, parser_class=type(robot))
-    evaluate = sub.add_parser("eval", help="physics success next to abstract success, per seed")
-    evaluate.add_argument("run_dir", help="a pimbot run directory of escape_room-v0")
-    evaluate.add_argument("--episodes", default="10", help="episodes per seed (default 10)")
-    evaluate.add_argument("--rosbag", help="write the first seed's first episode as a ROS 2 bag")
-    evaluate.add_argument("--json", help="write the results as JSON to this file")
-    evaluate.add_argument(
-        "--nominal-room", action="store_true", help="the fixed room instead of random layouts"
-    )
-    evaluate.add_argument(
-        "--physics",
-        nargs="*",
-        default=[],
-        metavar="name=value",
-        help="physics settings, e.g. actuation_noise=0.2 decision_time_limit=15",
-    )
-    render = sub.add_parser("render", help="top-down video of one physics episode")
-    render.add_argument("run_dir", help="a pimbot run directory of escape_room-v0")
-    render.add_argument("--out", required=True, help="video file: .gif, or .mp4 (needs ffmpeg)")
-    render.add_argument("--seed-index", default="0", help="which seed of the run (default 0)")
-    render.add_argument("--episode", default="0", help="which episode of that seed (default 0)")
-    render.add_argument("--renderer", default="auto", help="auto, mujoco or matplotlib")
-    render.add_argument("--frame", help="also write the episode's last frame as this PNG")
-    render.add_argument(
-        "--nominal-room", action="store_true", help="the fixed room instead of random layouts"
-    )
 
 
 def _count(name: str, text: str, low: int) -> int:
@@ -58,12 +24,6 @@ def _count(name: str, text: str, low: int) -> int:
     return value
 
 
-def run(args: argparse.Namespace) -> int:
-    if args.robot_command == "eval":
-        return _eval(args)
-    return _render(args)
-
-
 def _check_run_dir(text: str) -> Path:
     from pimbot.envs.core import InvalidParameter
 
@@ -73,7 +33,7 @@ def _check_run_dir(text: str) -> Path:
     return path
 
 
-def _eval(args) -> int:
+def cmd_eval(args) -> int:
     from pimbot.envs.core import InvalidParameter
 
     episodes = _count("episodes", args.episodes, 1)
@@ -94,7 +54,7 @@ def _eval(args) -> int:
     from pimbot.experiment import store
     from pimbot.robot import evaluate
 
-    overrides = evaluate.parse_physics_overrides(args.physics)
+    overrides = evaluate.parse_physics_overrides(list(args.physics))
     if args.nominal_room:
         overrides["randomize_layout"] = False
     print(f"{run_dir}: {episodes} physics and {episodes} abstract episodes per seed")
@@ -127,7 +87,7 @@ def _eval(args) -> int:
     return 0
 
 
-def _render(args) -> int:
+def cmd_render(args) -> int:
     from pimbot.envs.core import InvalidParameter
 
     run_dir = _check_run_dir(args.run_dir)
