@@ -44,6 +44,16 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 CACHE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "pimbot-original"
 MARKERS = ("ORIGINAL_LIO_RESULT ", "ORIGINAL_RECIPROCATOR_RESULT ", "PIMBOT_RESULT ")
+SHOWN = (  # the figures echoed to stderr as each process ends
+    "ms_per_iteration",
+    "cpu_ms_per_iteration",
+    "seed_iterations_per_s",
+    "seed_iterations_per_cpu_s",
+    "s_per_update",
+    "cpu_s_per_update",
+    "compile_s",
+    "process_s",
+)
 REFERENCE = {  # the figures of issue 13, for comparison only (not used in any ratio)
     "original_lio_ms": 8.35,
     "pimbot_lio_seed_it_s": 12_600,
@@ -67,6 +77,8 @@ def run_pinned(name: str, argv: list[str], core: int, log_dir: Path, env: dict) 
             if line.startswith(marker):
                 result = json.loads(line[len(marker) :])
                 result["process_s"] = elapsed
+                shown = {k: result[k] for k in SHOWN if result.get(k) is not None}
+                print(f"    -> {json.dumps(shown)}", file=sys.stderr, flush=True)
                 return result
     tail = log.read_text().splitlines()[-15:]
     raise RuntimeError(f"{name} failed (exit {proc.returncode}); end of {log}:\n" + "\n".join(tail))
