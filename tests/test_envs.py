@@ -15,6 +15,7 @@ from pimbot.envs import EscapeRoom, InvalidParameter, MatrixGame, StagHunt, Stag
 from pimbot.envs.escape_room import DOOR, LEVER, START
 from pimbot.envs.matrix_games import COOPERATE, DEFECT, HARE, IPD_PAYOFF, STAG
 from pimbot.envs.stag_hunt import DOWN, LEFT, RIGHT, STAY, UP
+from pimbot.rollout import episode_metrics, rollout
 
 KEY = jax.random.key(0)
 
@@ -44,7 +45,7 @@ def play(env, joint_actions, state=None, key=KEY):
         obs, state, rewards, done, info = step(
             jax.random.fold_in(key, t), state, jnp.asarray(actions, jnp.int32)
         )
-        info = {name: np.asarray(value).item() for name, value in info.items()}
+        info = {name: np.asarray(value).tolist() for name, value in info.items()}
         steps.append(Step(np.asarray(obs), np.asarray(rewards).tolist(), bool(done), info, state))
     return steps
 
@@ -67,7 +68,9 @@ def test_registry_lists_every_env():
         "n_players": 2,
         "grid_size": 5,
         "max_steps": 50,
-        "stag_move_prob": 0.5,
+        "n_hares": 0,
+        "stag_random_action_prob": 0.5,
+        "stag_moves_first": True,
     }
 
 
@@ -274,7 +277,8 @@ def test_matrix_games_are_one_class_with_payoff_data():
 
 # --- Stag Hunt gridworld golden tests ----------------------------------------------------
 
-STILL_STAG = StagHunt(stag_move_prob=0.0)
+STILL_STAG = StagHunt(stag_random_action_prob=0.0)
+RESTLESS_STAG = StagHunt(stag_random_action_prob=1.0)
 
 
 def _hand_state(env, hunters, stag, hares):
@@ -291,17 +295,56 @@ def _after_one_step(env, state, actions, num_keys):
     return [play(env, [actions], state, jax.random.key(k))[0] for k in range(num_keys)]
 
 
+def _cell(array):
+    return tuple(np.asarray(array).tolist())
+
+
+def test_stag_hunt_has_one_hare_per_hunter_unless_told():
+    for n in (2, 3, 4):
+        env = StagHunt(n_players=n)
+        _, state = jax.eval_shape(env.reset, KEY)
+        assert state.hares.shape == (n, 2) and env.obs_dim == 2 * (2 * n + 1)
+    assert jax.eval_shape(StagHunt(n_players=3, n_hares=2).reset, KEY)[1].hares.shape == (2, 2)
+
+
 def test_stag_hunt_all_hunters_on_stag_capture_it():
     state = _hand_state(STILL_STAG, [[2, 2], [2, 1]], [2, 2], [[2, 2], [4, 4]])
     outcomes = _after_one_step(STILL_STAG, state, (STAY, DOWN), 8)
     for s in outcomes:
         assert s.rewards == [5.0, 5.0]  # no extra hare reward on a stag capture
         assert s.info["success"] and s.info["stag_captures"] == 1
+        assert s.info["return_over_stag_payoff"] == [1.0, 1.0]
         np.testing.assert_array_equal(s.state.hunters, [[2, 2], [2, 2]])
         np.testing.assert_array_equal(s.state.hares, [[2, 2], [4, 4]])  # hares left alone
-    new_stags = {tuple(np.asarray(s.state.stag).tolist()) for s in outcomes}
+    new_stags = {_cell(s.state.stag) for s in outcomes}
     assert len(new_stags) > 1, "the captured stag must respawn at a random cell"
     assert all(0 <= c < 5 for cell in new_stags for c in cell)
+
+
+def test_stag_hunt_stag_acts_before_the_capture_check():
+    # The hunters step onto the stag's cell; the stag acts first and may leave it.
+    state = _hand_state(RESTLESS_STAG, [[2, 1], [1, 2]], [2, 2], [[0, 0], [4, 4]])
+    outcomes = _after_one_step(RESTLESS_STAG, state, (DOWN, RIGHT), 40)
+    for s in outcomes:
+        if s.info["success"]:
+            assert s.rewards == [5.0, 5.0]
+        else:  # it stepped off: one cell away, no reward
+            assert s.rewards == [0.0, 0.0]
+            assert np.abs(np.asarray(s.state.stag) - [2, 2]).sum() == 1
+    captured = sum(s.info["success"] for s in outcomes)
+    assert 0 < captured < len(outcomes)  # it stays with probability 1/5
+    # Waiting hunters catch a stag that walks onto their cell.
+    state = _hand_state(RESTLESS_STAG, [[2, 2], [2, 2]], [2, 1], [[0, 0], [4, 4]])
+    outcomes = _after_one_step(RESTLESS_STAG, state, (STAY, STAY), 40)
+    assert any(s.info["success"] for s in outcomes)
+
+
+def test_stag_hunt_capture_check_before_the_stag_acts_when_asked():
+    env = StagHunt(stag_random_action_prob=1.0, stag_moves_first=False)
+    state = _hand_state(env, [[2, 1], [1, 2]], [2, 2], [[0, 0], [4, 4]])
+    assert all(s.info["success"] for s in _after_one_step(env, state, (DOWN, RIGHT), 20))
+    state = _hand_state(env, [[2, 2], [2, 2]], [2, 1], [[0, 0], [4, 4]])
+    assert not any(s.info["success"] for s in _after_one_step(env, state, (STAY, STAY), 20))
 
 
 def test_stag_hunt_hunter_on_hare_gets_one():
@@ -310,15 +353,27 @@ def test_stag_hunt_hunter_on_hare_gets_one():
     for s in outcomes:
         assert s.rewards == [1.0, 0.0]
         assert not s.info["success"] and s.info["stag_captures"] == 0
+        assert s.info["return_over_stag_payoff"] == pytest.approx([0.2, 0.0])
         np.testing.assert_array_equal(s.state.hares[1], [4, 4])
-        np.testing.assert_array_equal(s.state.stag, [2, 2])  # stag_move_prob = 0
-    assert len({tuple(np.asarray(s.state.hares[0]).tolist()) for s in outcomes}) > 1
+        np.testing.assert_array_equal(s.state.stag, [2, 2])  # the stag never acts here
+    assert len({_cell(s.state.hares[0]) for s in outcomes}) > 1
 
 
-def test_stag_hunt_two_hunters_on_one_hare_both_get_one():
+def test_stag_hunt_two_hares_on_one_cell_pay_two():
+    state = _hand_state(STILL_STAG, [[0, 1], [3, 3]], [2, 2], [[0, 0], [0, 0]])
+    (s,) = play(STILL_STAG, [(UP, STAY)], state)
+    assert s.rewards == [2.0, 0.0]
+
+
+def test_stag_hunt_of_two_hunters_on_one_hare_the_lower_id_takes_it():
+    # The hare respawns at once; hunter 1 gets it only if it respawns onto their cell.
     state = _hand_state(STILL_STAG, [[1, 0], [0, 1]], [2, 2], [[0, 0], [4, 4]])
-    (s,) = play(STILL_STAG, [(LEFT, UP)], state)
-    assert s.rewards == [1.0, 1.0]
+    outcomes = _after_one_step(STILL_STAG, state, (LEFT, UP), 20)
+    assert all(s.rewards[0] == 1.0 for s in outcomes)
+    assert sum(s.rewards[1] for s in outcomes) < 5  # 1/25 per key
+    for s in outcomes:
+        if s.rewards[1] == 0.0:
+            assert _cell(s.state.hares[0]) != (0, 0)
 
 
 def test_stag_hunt_one_hunter_on_stag_gets_nothing():
@@ -344,19 +399,21 @@ def test_stag_hunt_still_stag_never_moves_and_episode_lasts_max_steps():
     assert [s.done for s in steps] == [False] * 49 + [True]
 
 
-def test_stag_hunt_wandering_stag_takes_one_step():
-    env = StagHunt(stag_move_prob=1.0)
-    state = _hand_state(env, [[0, 0], [4, 4]], [2, 2], [[1, 3], [3, 1]])
-    for s in _after_one_step(env, state, (STAY, STAY), 4):
-        assert np.abs(np.asarray(s.state.stag) - [2, 2]).sum() == 1
+def test_stag_hunt_stag_action_includes_staying():
+    state = _hand_state(RESTLESS_STAG, [[0, 0], [4, 4]], [2, 2], [[1, 3], [3, 1]])
+    distances = [
+        np.abs(np.asarray(s.state.stag) - [2, 2]).sum()
+        for s in _after_one_step(RESTLESS_STAG, state, (STAY, STAY), 40)
+    ]
+    assert set(distances) == {0, 1}
 
 
 def test_stag_hunt_observation_order():
-    env = StagHunt(n_players=3, stag_move_prob=0.0)
-    state = _hand_state(env, [[0, 1], [2, 3], [4, 0]], [1, 1], [[3, 3], [0, 4]])
+    env = StagHunt(n_players=3, stag_random_action_prob=0.0)
+    state = _hand_state(env, [[0, 1], [2, 3], [4, 0]], [1, 1], [[3, 3], [0, 4], [2, 2]])
     (s,) = play(env, [(STAY, STAY, STAY)], state)
-    # Hunter 1: own cell, hunters 0 and 2, the stag, the two hares; divided by the grid size.
-    expected = np.array([2, 3, 0, 1, 4, 0, 1, 1, 3, 3, 0, 4], np.float32) / 5
+    # Hunter 1: own cell, hunters 0 and 2, the stag, the three hares; divided by the grid size.
+    expected = np.array([2, 3, 0, 1, 4, 0, 1, 1, 3, 3, 0, 4, 2, 2], np.float32) / 5
     np.testing.assert_array_equal(s.obs[1], expected)
     assert s.obs.dtype == np.float32 and s.obs.shape == (3, env.obs_dim)
 
@@ -368,6 +425,60 @@ def test_stag_hunt_episode_success_is_clipped_stag_rate():
     assert score(jnp.array([2.0, 3.0])) == 0.5
     assert score(jnp.array([12.0, 11.0])) == 1.0
     assert score(jnp.array([0.0, 0.0])) == 0.0
+
+
+# --- per-step metrics declared by the envs -----------------------------------------------
+
+
+@functools.cache
+def _metrics_of_fixed_actions(env):
+    """Jitted: the episode metrics when every agent plays the same action every step."""
+    return jax.jit(lambda a: episode_metrics(env, rollout(env, KEY, lambda key, obs: a)))
+
+
+@pytest.mark.parametrize(
+    ("n", "m", "actions", "exits"),
+    [
+        (2, 1, (LEVER, DOOR), [0.0, 1.0]),
+        (2, 1, (DOOR, DOOR), [0.0, 0.0]),  # door closed: truncated, nobody exits
+        (4, 2, (LEVER, LEVER, DOOR, DOOR), [0.0, 0.0, 1.0, 1.0]),
+        (4, 2, (LEVER, LEVER, START, DOOR), [0.0, 0.0, 0.0, 1.0]),
+    ],
+)
+def test_escape_room_exit_success_is_per_agent(n, m, actions, exits):
+    env = EscapeRoom(n_agents=n, min_at_lever=m)
+    metrics = _metrics_of_fixed_actions(env)(jnp.asarray(actions, jnp.int32))
+    np.testing.assert_array_equal(metrics["exit_success"], exits)
+    assert metrics["success"] == float(any(exits))
+
+
+def test_stag_hunt_episode_metrics_count_captures_and_the_codes_quantity():
+    env = StagHunt(n_players=2, grid_size=2, max_steps=20)  # a small grid: captures happen
+    play_many = jax.jit(jax.vmap(lambda k: rollout(env, k, _random_actions(env))))
+    trajs = play_many(jax.random.split(KEY, 16))
+    metrics = jax.vmap(lambda t: episode_metrics(env, t))(trajs)
+    np.testing.assert_array_equal(metrics["stag_captures"], trajs.success.sum(axis=1))
+    assert metrics["stag_captures"].sum() > 0
+    np.testing.assert_allclose(
+        metrics["return_over_stag_payoff"], metrics["return_env"] / 5.0, rtol=1e-6
+    )
+    assert (metrics["return_over_stag_payoff"][:, 0] > metrics["success"]).any()  # unclipped
+
+
+def test_envs_without_step_metrics_report_only_the_common_metrics():
+    env = envs.make("ipd-v0")
+    metrics = jax.eval_shape(
+        lambda k: episode_metrics(env, rollout(env, k, _random_actions(env))), KEY
+    )
+    assert set(metrics) == set(COMMON_METRICS)
+
+
+def _random_actions(env):
+    return lambda key, obs: jax.random.randint(key, (env.num_agents,), 0, env.num_actions)
+
+
+COMMON_METRICS = ("success", "steps", "team_return", "return_env", "received", "given")
+COMMON_METRICS += ("return_total",)
 
 
 # --- bad parameters ----------------------------------------------------------------------
@@ -382,8 +493,10 @@ def test_stag_hunt_episode_success_is_clipped_stag_rate():
         ("ipd-v0", {"max_steps": 0}, "max_steps"),
         ("stag_hunt_matrix-v0", {"n_players": 2.0}, "n_players"),
         ("stag_hunt-v0", {"grid_size": 1}, "grid_size"),
-        ("stag_hunt-v0", {"stag_move_prob": 1.5}, "stag_move_prob"),
-        ("stag_hunt-v0", {"stag_move_prob": "0.5"}, "stag_move_prob"),
+        ("stag_hunt-v0", {"stag_random_action_prob": 1.5}, "stag_random_action_prob"),
+        ("stag_hunt-v0", {"stag_random_action_prob": "0.5"}, "stag_random_action_prob"),
+        ("stag_hunt-v0", {"n_hares": -1}, "n_hares"),
+        ("stag_hunt-v0", {"stag_moves_first": "yes"}, "stag_moves_first"),
         ("stag_hunt_matrix-v0", {"game": "ipd"}, "game"),
         ("ipd-v0", {"colour": "red"}, "colour"),
     ],

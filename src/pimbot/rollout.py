@@ -14,7 +14,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from pimbot.contracts.attack import NO_ATTACK, Attack, Decision, attack_key
-from pimbot.envs.core import Env
+from pimbot.envs.core import Env, step_metric_names
 
 # act(key, obs [N, obs_dim]) -> actions int32 [N]
 ActFn = Callable[[jax.Array, jax.Array], jax.Array]
@@ -34,6 +34,7 @@ class Trajectory:
     incentive_offset: jax.Array  # float32 [T, N, N]
     valid: jax.Array  # bool [T], the step took place
     success: jax.Array  # bool [T], info["success"] of the step
+    step_metrics: dict[str, jax.Array]  # per env.step_metrics name: float32 [T] or [T, N]
 
 
 def fill_incentive_obs(env: Env, obs: jax.Array, given: jax.Array) -> jax.Array:
@@ -132,6 +133,10 @@ def rollout(
             incentive_offset=offset.astype(jnp.float32),
             valid=alive,
             success=info["success"] & alive,
+            step_metrics={
+                name: jnp.where(alive, info[name], 0).astype(jnp.float32)
+                for name in step_metric_names(env)
+            },
         )
         return (next_state, next_obs, given + incentives, alive & ~done), step
 
@@ -160,13 +165,14 @@ def received(incentives: jax.Array) -> jax.Array:
 
 
 def episode_metrics(env: Env, traj: Trajectory) -> dict[str, jax.Array]:
-    """Per-episode metrics (see spec/experiments.md)."""
+    """Per-episode metrics (see spec/experiments.md), then the episode sums of the
+    env's declared per-step metrics (`Env.step_metrics`) under their own names."""
     env_return = traj.env_rewards.sum(axis=0)  # [N]
     got = received(traj.incentives).sum(axis=0)  # [N]
     given = traj.incentives.sum(axis=(0, 2))  # [N]
     steps = traj.valid.sum()
     success = env.episode_success(traj.success.sum(), steps, env_return)
-    return {
+    metrics = {
         "success": success,
         "steps": steps.astype(jnp.float32),
         "team_return": env_return.sum(),
@@ -175,3 +181,8 @@ def episode_metrics(env: Env, traj: Trajectory) -> dict[str, jax.Array]:
         "given": given,
         "return_total": env_return + got - given,
     }
+    for name, per_step in traj.step_metrics.items():
+        if name in metrics:
+            raise ValueError(f"step_metrics: {name!r} would replace pimbot's own metric")
+        metrics[name] = per_step.sum(axis=0)
+    return metrics

@@ -38,6 +38,9 @@ _PG_IPD_COLUMN = {
 }
 _RECIPROCATOR_W1 = {"reciprocal_weight": 1.0}
 _OTHER_GAMES = {"lio": _LIO_IPD_COLUMN, "pg": _PG_IPD_COLUMN, "reciprocator": _RECIPROCATOR_W1}
+# Stag Hunt gridworld: the original config_staghunt_lio is LIO's Escape Room column (LIO's
+# base config); PG takes the same policy settings (PG's own base is its ER column).
+_STAG_HUNT_LIO_PG = {"lio": {}, "pg": {"lr_policy": 1e-4, "epsilon_start": 0.5}}
 
 register(
     "escape_room-v0",
@@ -55,7 +58,7 @@ register(
     "stag_hunt-v0",
     StagHunt,
     "Stag Hunt gridworld: all N hunters on the stag pay +5 each, a hare pays +1 to its hunter.",
-    learner_defaults=_OTHER_GAMES,
+    learner_defaults=_OTHER_GAMES | _STAG_HUNT_LIO_PG,
 )
 register(
     "stag_hunt_matrix-v0",

@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from pimbot.envs.core import Env
+from pimbot.envs.core import Env, step_metric_names
 
 _PROTOCOL_FLAGS = ("incentive_obs", "stochastic", "terminates_on_success")
 
@@ -150,6 +150,11 @@ def _check_signatures(env: Env, key: jax.Array, actions: jax.Array) -> None:
     _assert_array("done", done, (), jnp.bool_)
     assert isinstance(info, dict) and "success" in info, 'info must be a dict with "success"'
     _assert_array('info["success"]', info["success"], (), jnp.bool_)
+    for name in step_metric_names(env):
+        assert name in info, f"step_metrics names {name!r}, which info does not hold"
+        assert info[name].shape in ((), (n,)), (
+            f'info["{name}"] (a step metric) must have shape () or ({n},), got {info[name].shape}'
+        )
     assert jax.tree.structure(state) == jax.tree.structure(next_state) and all(
         (x.shape, x.dtype) == (y.shape, y.dtype)
         for x, y in zip(jax.tree.leaves(state), jax.tree.leaves(next_state), strict=True)

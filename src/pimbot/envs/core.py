@@ -37,6 +37,11 @@ class Env(Protocol):
         terminates_on_success: True when a successful step ends the episode
             (a genuine terminal state); otherwise `done` only marks the horizon
             `max_steps`, which the PettingZoo adapter reports as truncation.
+
+    Optional: ``step_metrics``, a tuple of `info` keys whose per-step values (scalar
+    or [N], numbers or bools) are summed over each episode's steps and reported by
+    every learner as evaluation metrics of those names (``eval/<name>``, per agent
+    ``eval/<name>/agent_<i>``); see `step_metric_names`.
     """
 
     num_agents: int
@@ -76,6 +81,11 @@ class Env(Protocol):
             env_return: float32 [N] environment return of each agent.
         """
         ...
+
+
+def step_metric_names(env: Env) -> tuple[str, ...]:
+    """The `info` keys `env` declares as per-step metrics (``step_metrics``; none if absent)."""
+    return tuple(getattr(env, "step_metrics", ()))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -6,6 +6,10 @@ lever in that step. Reward per agent and step: +10 if the door is open and the
 agent chose the door; else 0 if it stayed where it was; else -1. The episode
 ends with success when the door is open and some agent is at the door after the
 step, otherwise it is truncated at `max_steps`.
+
+Per-step metric (`step_metrics`): "exit_success" [N], 1 for every agent that
+stands at the open door in the step (summed over an episode: whether agent i
+itself exited; the episode's success only says that some agent did).
 """
 
 from __future__ import annotations
@@ -46,6 +50,7 @@ class EscapeRoom:
     incentive_obs: bool = dataclasses.field(default=True, init=False)
     idle_action: int = dataclasses.field(default=START, init=False)
     terminates_on_success: bool = dataclasses.field(default=True, init=False)
+    step_metrics: tuple[str, ...] = dataclasses.field(default=("exit_success",), init=False)
 
     def __post_init__(self) -> None:
         check_int("n_agents", self.n_agents, 2)
@@ -115,7 +120,9 @@ class EscapeRoom:
         success = door_open & jnp.any(actions == DOOR)
         done = success | (step_count >= self.max_steps)
         new_state = EscapeRoomState(actions, step_count)
-        info = {"success": success, "door_open": door_open}
+        # Agent i exits when it is at the door while it is open (only on the last step).
+        exit_success = door_open & (actions == DOOR)
+        info = {"success": success, "door_open": door_open, "exit_success": exit_success}
         return self._observe(actions), new_state, rewards, done, info
 
     def episode_success(self, success_steps, num_steps, env_return):

@@ -107,7 +107,7 @@ class FunctionalParallelEnv(ParallelEnv):
             self._key, self._state, action_array
         )
         self._num_steps += 1
-        info = {name: np.asarray(value).item() for name, value in info.items()}
+        info = {name: np.asarray(value).tolist() for name, value in info.items()}
         done = bool(done)
         terminated = done and (
             self._num_steps < self.env.max_steps
@@ -123,7 +123,10 @@ class FunctionalParallelEnv(ParallelEnv):
             {agent: float(rewards[i]) for i, agent in enumerate(agents)},
             dict.fromkeys(agents, terminated),
             dict.fromkeys(agents, truncated),
-            {agent: dict(info) for agent in agents},
+            {
+                agent: _own_info(info, i, len(self.possible_agents))
+                for i, agent in enumerate(agents)
+            },
         )
 
     def render(self) -> None:
@@ -131,6 +134,14 @@ class FunctionalParallelEnv(ParallelEnv):
 
     def close(self) -> None:
         pass
+
+
+def _own_info(info: dict[str, Any], agent: int, num_agents: int) -> dict[str, Any]:
+    """An agent's info: its own entry of per-agent ([N]) values, scalars as they are."""
+    return {
+        name: value[agent] if isinstance(value, list) and len(value) == num_agents else value
+        for name, value in info.items()
+    }
 
 
 def parallel_env(env_id: str, **params: Any) -> FunctionalParallelEnv:
