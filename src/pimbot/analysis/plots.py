@@ -18,8 +18,12 @@ RANDOM_POLICY = {
     "ER(2,1)": {"eval/success": 0.72, "eval/return_ratio": 0.38},
     "ER(4,2)": {"eval/success": 0.80, "eval/return_ratio": 0.17},
     "ER(4,3)": {"eval/success": 0.22, "eval/return_ratio": -1.38},
+    "SH(2)": {"eval/stag_captures": 0.067},
+    "SH(3)": {"eval/stag_captures": 0.003},
+    "SH(4)": {"eval/stag_captures": 1e-4},
 }
-"""A uniformly random team, 200k simulated episodes (spec/experiments.md), by env label."""
+"""A uniformly random team, simulated (spec/experiments.md, spec/environments.md), by env
+label."""
 
 
 def band(ax, run_dir: Path, column: str, label=None, color=None, lw=1.2, style="-") -> None:
