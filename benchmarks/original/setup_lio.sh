@@ -17,11 +17,11 @@
 #      `from lio.alg import networks` / `from lio.utils import util`.
 #      The fix is applied IN PLACE to LIO_CHECKOUT (pass a copy if you want yours
 #      untouched); it is idempotent.
-# The checkout is not installed into the venv: the timing driver puts it on PYTHONPATH.
+# The checkout is not installed into the venv: the timing script puts it on sys.path.
 set -euo pipefail
 
 if [[ $# -lt 1 ]]; then
-  sed -n '2,21p' "$0"; exit 2
+  awk 'NR > 1 && /^#/ { sub(/^# ?/, ""); print; next } NR > 1 { exit }' "$0"; exit 2
 fi
 LIO=$(cd "$1" && pwd)
 VENV=${2:-${XDG_CACHE_HOME:-$HOME/.cache}/pimbot-original/lio-venv}

@@ -21,7 +21,7 @@
 set -euo pipefail
 
 if [[ $# -lt 1 ]]; then
-  sed -n '2,21p' "$0"; exit 2
+  awk 'NR > 1 && /^#/ { sub(/^# ?/, ""); print; next } NR > 1 { exit }' "$0"; exit 2
 fi
 REC=$(cd "$1" && pwd)
 VENV=${2:-${XDG_CACHE_HOME:-$HOME/.cache}/pimbot-original/reciprocator-venv}
