@@ -307,7 +307,7 @@ def test_defense_config_errors_name_the_field():
 @pytest.mark.parametrize(
     ("argv", "expected"),
     [
-        (["--defense", "nope"], "defenses: unknown defense 'nope'"),
+        (["--defense", "nope"], "defense: unknown value 'nope'; allowed: incentive_guard"),
         (["--dp", "min_epsilon=0.3"], "defense_param: given without --defense"),
         (["--defense", "exploration_floor", "--dp", "min_epsilon=2"], "min_epsilon: must be"),
         (["--defense", "incentive_guard", "--dp", "zz=1"], "defense_param: 'zz' is not"),

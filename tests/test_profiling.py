@@ -189,7 +189,7 @@ def test_profile_bad_input_is_one_line(tmp_path, capsys):
     argv = ["profile", "--env", "escape_room-v0", "--controller", "evil", "--out", str(tmp_path)]
     assert cli.main(argv) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "controller: unknown controller 'evil'" in err
+    assert err.count("\n") == 1 and "controller: unknown value 'evil'; allowed: benign, admo" in err
     assert cli.main(["profile", "--env", "escape_room-v0", "--duration", "0", "--out", "x"]) == 2
 
 
