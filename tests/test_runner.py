@@ -153,3 +153,45 @@ def test_runs_differing_only_in_attack_or_defense_numbers_share_one_program(atta
     fn = runner.make_chunk_fn(first, 1)
     texts = [fn.lower(states, keys, r.attack, r.defenses).as_text() for r in (first, second)]
     assert texts[0] == texts[1]
+
+
+def test_strategy_attacks_on_one_shared_program_give_their_own_results(tmp_path):
+    """Clean, fake incentive and bypass run on one `programs.Strategies` program (one
+    compile, the program kept in a ProgramCache) write what each writes on its own program:
+    bitwise equal metrics and checkpoints."""
+    from pimbot.experiment import programs
+    from pimbot.experiment.config import resolve
+
+    runs = {
+        name: RunConfig(**SMALL, seeds=2, attack=attack)
+        for name, attack in (("clean", None), ("fake", "fake_incentive"), ("bypass", "bypass"))
+    }
+    attacks = [resolve(run).attack for run in runs.values()]
+    strategies = {programs.member_kind(a): a for a in attacks}
+    assert len(strategies) == 3
+    keys = {programs.share_key(resolve(run), 1, 2) for run in runs.values()}
+    assert len(keys) == 1
+    assert len({programs.program_key(resolve(run), 1, 2) for run in runs.values()}) == 3
+    cache = runner.ProgramCache()
+    for name, run in runs.items():
+        runner.train(run, tmp_path / "own" / name, progress=False)
+        runner.train(
+            run, tmp_path / "shared" / name, progress=False, cache=cache, strategies=strategies
+        )
+    assert len(cache.compiled) == 1 and cache.reused == 2
+    for name in runs:
+        own, shared = tmp_path / "own" / name, tmp_path / "shared" / name
+        rows = [
+            [{c: r[c] for c in _learning_columns(r)} for r in store.read_metrics(d)]
+            for d in (own, shared)
+        ]
+        assert rows[0] == rows[1], name
+        state = "checkpoint/state.msgpack"
+        assert (own / state).read_bytes() == (shared / state).read_bytes(), name
+        assert (
+            store.read_json(own / "config.json")["identity"]
+            == store.read_json(shared / "config.json")["identity"]
+        )
+    # the attacks did change the runs
+    clean, fake = (store.read_metrics(tmp_path / "own" / n) for n in ("clean", "fake"))
+    assert clean[-1]["eval/given/agent_0"] != fake[-1]["eval/given/agent_0"]

@@ -89,13 +89,53 @@ def train_status(path: Path, spec) -> str:
     return "partial" if (path / store.CHECKPOINT_DIR).exists() else "pending"
 
 
-def train_execute(path: Path, spec, suite_dir: Path, options: JobOptions) -> dict[str, Any]:
+def train_execute(
+    path: Path, spec, suite_dir: Path, options: JobOptions, shared: Any = None
+) -> dict[str, Any]:
     from pimbot.experiment.runner import train
 
+    cache, strategies = shared if shared is not None else (None, None)
     result = train(
-        spec, path, progress=False, chunk_iterations=options.chunk_iterations, log=options.log
+        spec,
+        path,
+        progress=False,
+        chunk_iterations=options.chunk_iterations,
+        log=options.log,
+        cache=cache,
+        strategies=strategies,
     )
     return {"success": result.summary["final"]["eval/success"]["mean"]}
+
+
+def train_share(spec, options: JobOptions, devices: int) -> str | None:
+    """The compiled program a training job runs on (`programs.share_key`): jobs with one
+    key run as one task on one program; None if the spec does not resolve (it fails
+    alone, with its own message)."""
+    from pimbot.envs.core import InvalidParameter
+    from pimbot.experiment import programs
+    from pimbot.experiment.config import resolve
+    from pimbot.experiment.runner import program_shape
+
+    try:
+        resolved = resolve(spec)
+    except (InvalidParameter, KeyError, ValueError):
+        return None
+    periods, seeds = program_shape(resolved, options.chunk_iterations, False, devices)
+    return programs.share_key(resolved, periods, seeds, devices)
+
+
+def train_strategies(specs: list) -> dict[str, Any] | None:
+    """kind -> attack of the strategy attacks among `specs` (a group's jobs), when there
+    are several kinds (the runner then runs them on one `programs.Strategies` program)."""
+    from pimbot.experiment import programs
+    from pimbot.experiment.config import resolve
+
+    templates: dict[str, Any] = {}
+    for spec in specs:
+        attack = resolve(spec).attack
+        if programs.shareable(attack):
+            templates.setdefault(programs.member_kind(attack), attack)
+    return templates if len(templates) > 1 else None
 
 
 def train_progress(path: Path, spec) -> float:
@@ -125,7 +165,9 @@ def profile_status(path: Path, spec) -> str:
     )
 
 
-def profile_execute(path: Path, spec, suite_dir: Path, options: JobOptions) -> dict[str, Any]:
+def profile_execute(
+    path: Path, spec, suite_dir: Path, options: JobOptions, shared: Any = None
+) -> dict[str, Any]:
     from pimbot.profiling import profile
 
     _clear(path)
@@ -140,7 +182,9 @@ def robot_status(path: Path, spec) -> str:
     return _summary_status(path, _as_json(spec), lambda s: s.get("spec"))
 
 
-def robot_execute(path: Path, spec, suite_dir: Path, options: JobOptions) -> dict[str, Any]:
+def robot_execute(
+    path: Path, spec, suite_dir: Path, options: JobOptions, shared: Any = None
+) -> dict[str, Any]:
     from pimbot.robot.evaluate import evaluate_run
 
     _clear(path)
@@ -167,14 +211,21 @@ def train_describe(run) -> str:
 @dataclasses.dataclass(frozen=True)
 class Kind:
     status: Callable[[Path, Any], str]
-    execute: Callable[[Path, Any, Path, JobOptions], dict[str, Any]]
+    execute: Callable[..., dict[str, Any]]
+    """execute(path, spec, suite_dir, options, shared=None): `shared` is what the jobs of
+    one group share (train: (runner.ProgramCache, strategies))."""
     progress: Callable[[Path, Any], float]
     cost: Callable[[Any], float]
     describe: Callable[[Any], str]
+    share: Callable[[Any, JobOptions, int], str | None] = lambda spec, options, devices: None
+    """The program a job runs on: jobs of one kind with one (non-None) key form a group,
+    run as one task that compiles it once; None: alone."""
 
 
 KINDS = {
-    "train": Kind(train_status, train_execute, train_progress, train_cost, train_describe),
+    "train": Kind(
+        train_status, train_execute, train_progress, train_cost, train_describe, train_share
+    ),
     "profile": Kind(
         profile_status,
         profile_execute,

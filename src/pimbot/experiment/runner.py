@@ -27,7 +27,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 import pimbot
 from pimbot.envs.core import InvalidParameter
-from pimbot.experiment import store, tracking
+from pimbot.experiment import programs, store, tracking
 from pimbot.experiment.config import ResolvedRun, RunConfig, env_parameters, resolve
 from pimbot.experiment.progress import CompileNotice, Progress
 from pimbot.experiment.summary import summarize
@@ -120,14 +120,41 @@ def make_chunk_fn(resolved: ResolvedRun, num_periods: int):
 
         return jax.lax.scan(period, state, None, length=num_periods)
 
-    return jax.jit(jax.vmap(one_seed, in_axes=(0, 0, None, None)))
+    # the states are donated: a chunk updates them in place (the caller keeps only the result)
+    return jax.jit(jax.vmap(one_seed, in_axes=(0, 0, None, None)), donate_argnums=0)
+
+
+def make_init_fn(resolved: ResolvedRun):
+    """A jitted fn(init_keys [S], attack, defenses) -> every seed's initial state [S, ...]."""
+    env, learner, cfg = resolved.env, resolved.learner, resolved.learner_config
+    init = jax.vmap(lambda k, a, d: learner.init(k, env, cfg, a, d), in_axes=(0, None, None))
+    return jax.jit(init)
 
 
 def init_states(resolved: ResolvedRun, init_keys: jax.Array):
     """Every seed's initial learner state [S, ...]."""
-    env, learner, cfg = resolved.env, resolved.learner, resolved.learner_config
-    init = jax.vmap(lambda k, a, d: learner.init(k, env, cfg, a, d), in_axes=(0, None, None))
-    return jax.jit(init)(init_keys, resolved.attack, resolved.defenses)
+    return make_init_fn(resolved)(init_keys, resolved.attack, resolved.defenses)
+
+
+@dataclasses.dataclass
+class ProgramCache:
+    """Compiled programs kept across runs (a sweep worker keeps one for all its jobs):
+    runs with one `programs.program_key` share the init fn and the compiled chunk."""
+
+    entries: dict[str, list] = dataclasses.field(default_factory=dict)
+    """key -> [jitted init fn, compiled chunk (None until first lowered)]."""
+    compiled: list[tuple[str, float]] = dataclasses.field(default_factory=list)
+    """(key, seconds to trace, lower and compile it) of every program compiled here (a
+    persistent-cache hit counts: the process still traces, lowers and loads it)."""
+    reused: int = 0
+    """Runs that found their program already compiled here."""
+
+    def entry(self, resolved: ResolvedRun, periods: int, seeds: int, sharding):
+        devices = 1 if sharding is None else sharding.mesh.devices.size
+        key = programs.program_key(resolved, periods, seeds, devices)
+        if key not in self.entries:
+            self.entries[key] = [make_init_fn(resolved), None]
+        return key, self.entries[key]
 
 
 def metric_rows(resolved: ResolvedRun, chunk_metrics, seeds: list[int], perf: dict) -> list[dict]:
@@ -208,39 +235,65 @@ def periods_per_call(per_chunk: int, eval_period: int, progress: bool) -> int:
     return per_chunk
 
 
-def _concat_periods(calls: list) -> Any:
-    """Metrics of consecutive calls [S, E_i, ...] -> one chunk's metrics [S, ΣE_i, ...]."""
-    host = jax.device_get(calls)
+def program_shape(
+    resolved: ResolvedRun, chunk_iterations: int, progress: bool, devices: int
+) -> tuple[int, int]:
+    """(evaluation periods per compiled call, padded seeds) of `resolved` on `devices`
+    devices: with the run's structure, what its compiled chunk depends on."""
+    period = resolved.eval_period
+    per_chunk = evals_per_chunk(resolved.num_evals, period, chunk_iterations)
+    seeds = math.ceil(resolved.run.seeds / devices) * devices if devices > 1 else resolved.run.seeds
+    return periods_per_call(per_chunk, period, progress), seeds
+
+
+def _concat_periods(host: list) -> Any:
+    """Metrics of consecutive calls [S, E_i, ...] (on the host) -> one chunk's metrics
+    [S, ΣE_i, ...]."""
     return host[0] if len(host) == 1 else jax.tree.map(lambda *x: np.concatenate(x, 1), *host)
 
 
-def _start(resolved: ResolvedRun, run_dir: Path, periods: int):
+def _start(resolved: ResolvedRun, run_dir: Path, periods: int, cache: ProgramCache):
     """The seeds' states (initial or from the checkpoint), their evaluation keys, the
     iterations done, and the compiled call of `periods` evaluation periods with its
-    compile time."""
+    compile time (0 when this process had compiled the program already)."""
     run = resolved.run
     sharding, padded = seed_sharding(run.seeds)
     keys = seed_keys(run.first_seed, padded)
     init_keys = jax.vmap(lambda k: jax.random.fold_in(k, 0))(keys)
     eval_roots = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
-    states = init_states(resolved, init_keys)
+    t0 = time.perf_counter()
+    key, entry = cache.entry(resolved, periods, padded, sharding)
+    fresh = entry[1] is None
+    states = entry[0](init_keys, resolved.attack, resolved.defenses)
 
     done = 0
     saved = store.load_checkpoint(run_dir)
     if saved is not None:
         state_bytes, done = saved
-        states = flax.serialization.from_bytes(states, state_bytes)
-    store.truncate_rows(run_dir, done)
+        try:
+            states = flax.serialization.from_bytes(states, state_bytes)
+        except Exception as error:  # msgpack or structure mismatch: not this run's state
+            raise store.DamagedRunDir(
+                f"{run_dir / store.CHECKPOINT_DIR}: damaged (the state does not load: "
+                f"{type(error).__name__}); {store.RESTART_HINT}"
+            ) from None
+    # One row per seed and evaluation; fewer (deleted, truncated) refuse to resume.
+    store.truncate_rows(run_dir, done, expected_rows=run.seeds * (done // resolved.eval_period))
     if sharding is not None:
         states = jax.device_put(states, sharding)
         eval_roots = jax.device_put(eval_roots, sharding)
 
-    t0 = time.perf_counter()
-    lowered = make_chunk_fn(resolved, periods).lower(
-        states, eval_roots, resolved.attack, resolved.defenses
-    )
-    chunk_fn = lowered.compile()
-    return states, eval_roots, done, chunk_fn, time.perf_counter() - t0
+    if fresh:
+        lowered = make_chunk_fn(resolved, periods).lower(
+            states, eval_roots, resolved.attack, resolved.defenses
+        )
+        entry[1] = lowered.compile()
+    compile_s = time.perf_counter() - t0
+    if fresh:
+        cache.compiled.append((key, compile_s))
+    else:
+        cache.reused += 1
+    return states, eval_roots, done, entry[1], compile_s
 
 
 def train(
@@ -251,6 +304,8 @@ def train(
     chunk_iterations: int = TARGET_CHUNK_ITERATIONS,
     on_chunk=None,
     log: tuple[str, ...] = (),
+    cache: ProgramCache | None = None,
+    strategies: dict | None = None,
 ) -> TrainResult:
     """Trains (or resumes, or reports finished) one run into `run_dir`.
 
@@ -265,6 +320,12 @@ def train(
             checkpoint (the audit log).
         log: tracking backends ("tensorboard", "wandb", "mlflow"; see
             `pimbot.experiment.tracking`) that receive every metric row and the config.
+        cache: compiled programs to take the run's from and to keep it in (a sweep
+            worker passes one for all its jobs); None: a fresh one.
+        strategies: kind -> attack (`programs.shared_attack`): a strategy attack runs
+            as that member of `programs.Strategies`, the one program of every run that
+            differs from it only in numbers and in which of these attacks it is (same
+            results; None: its own program).
     """
     log = tracking.parse(log)
     tracking.require_clients(log)  # before anything is written
@@ -287,7 +348,13 @@ def train(
     period = resolved.eval_period
     per_chunk = evals_per_chunk(resolved.num_evals, period, chunk_iterations)
     per_call = periods_per_call(per_chunk, period, progress)
-    attack, defenses = resolved.attack, resolved.defenses
+    program = resolved
+    if strategies and programs.shareable(resolved.attack):
+        program = programs.with_attack(
+            resolved, programs.shared_attack(resolved.attack, strategies)
+        )
+    attack, defenses = program.attack, program.defenses
+    cache = cache if cache is not None else ProgramCache()
 
     trackers = tracking.Trackers(log, run_dir, seeds)
     status = "failed"
@@ -295,7 +362,9 @@ def train(
     t0 = time.perf_counter()
     try:
         with CompileNotice(title, enabled=progress):  # init and chunk compile: 10-20 s
-            states, eval_roots, done, chunk_fn, compile_s = _start(resolved, run_dir, per_call)
+            states, eval_roots, done, chunk_fn, compile_s = _start(
+                program, run_dir, per_call, cache
+            )
         trackers.catch_up(done)
         bar = Progress(title, run.iterations, done, enabled=progress)
         columns: list[str] | None = None
@@ -310,7 +379,8 @@ def train(
                 bar.update(done + (i + 1) * per_call * period, float(success.mean()))
             jax.block_until_ready(states)
             chunk_s = time.perf_counter() - t_chunk
-            chunk_metrics = _concat_periods(calls)
+            host_calls, host_states = jax.device_get((calls, states))  # one transfer
+            chunk_metrics = _concat_periods(host_calls)
             done += per_chunk * period
             perf = {
                 "perf/iters_per_s": per_chunk * period / chunk_s,
@@ -319,7 +389,7 @@ def train(
             rows = metric_rows(resolved, chunk_metrics, seeds, perf)
             columns = columns or list(rows[0])
             store.append_rows(run_dir, columns, rows)
-            store.save_checkpoint(run_dir, flax.serialization.to_bytes(states), done)
+            store.save_checkpoint(run_dir, flax.serialization.to_bytes(host_states), done)
             trackers.log(rows)
             if on_chunk is not None:
                 on_chunk(done, states, rows)

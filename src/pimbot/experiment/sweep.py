@@ -132,8 +132,10 @@ def execute_job(
     devices: int,
     options: JobOptions | None = None,
     plugins: tuple[str, ...] = (),
+    shared: Any = None,
 ) -> dict[str, Any]:
-    """Runs (or resumes, or confirms finished) one job; returns its status record."""
+    """Runs (or resumes, or confirms finished) one job; returns its status record.
+    `shared`: what the jobs of its group share (see `Kind.execute`)."""
     options = options or JobOptions()
     _configure_worker(devices)
     plugin_loader.load_plugins(plugins, from_env=False)  # once per process
@@ -142,9 +144,102 @@ def execute_job(
     t0 = time.perf_counter()
     with open(path.parent / f".{path.name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # waits out a leftover worker of a killed sweep
-        record = KINDS[job.kind].execute(path, job.spec, Path(suite_dir), options)
+        record = KINDS[job.kind].execute(path, job.spec, Path(suite_dir), options, shared)
     record["wall_s"] = time.perf_counter() - t0
     return record
+
+
+_COMPILES = {"xla_compiles": 0, "xla_compile_s": 0.0, "persistent_cache_hits": 0}
+"""This process's XLA compiles (every executable built, a persistent-cache hit included)."""
+
+
+def _watch_compiles() -> None:
+    """Counts this process's XLA compiles into `_COMPILES` (registered once)."""
+    if _COMPILES.get("watching"):
+        return
+    import jax.monitoring
+
+    def duration(event: str, seconds: float, **_) -> None:
+        if event == "/jax/core/compile/backend_compile_duration":
+            _COMPILES["xla_compiles"] += 1
+            _COMPILES["xla_compile_s"] += seconds
+
+    def count(event: str, **_) -> None:
+        if event == "/jax/compilation_cache/cache_hits":
+            _COMPILES["persistent_cache_hits"] += 1
+
+    jax.monitoring.register_event_duration_secs_listener(duration)
+    jax.monitoring.register_event_listener(count)
+    _COMPILES["watching"] = True
+
+
+PROGRAM_COUNTS = (
+    "chunk_programs",
+    "chunk_compile_s",
+    "xla_compiles",
+    "xla_compile_s",
+    "persistent_cache_hits",
+)
+
+
+def execute_group(
+    jobs: tuple[Job, ...],
+    suite_dir: str,
+    devices: int,
+    options: JobOptions | None = None,
+    plugins: tuple[str, ...] = (),
+) -> dict[str, Any]:
+    """Runs a group's jobs (one compiled program, see `groups`) one after the other in
+    this process. Returns {"records": name -> status record or {"error": line},
+    "programs": the programs compiled (`PROGRAM_COUNTS`)}; one failed job does not stop
+    the others."""
+    options = options or JobOptions()
+    _configure_worker(devices)
+    _watch_compiles()
+    before = dict(_COMPILES)
+    plugin_loader.load_plugins(plugins, from_env=False)  # once per process
+    shared = cache = None
+    if jobs[0].kind == "train":
+        from pimbot.experiment.jobs import train_strategies
+        from pimbot.experiment.runner import ProgramCache
+
+        cache = ProgramCache()
+        strategies = train_strategies([j.spec for j in jobs]) if len(jobs) > 1 else None
+        shared = (cache, strategies)
+    records: dict[str, Any] = {}
+    for job in jobs:
+        try:
+            records[job.name] = execute_job(job, suite_dir, devices, options, plugins, shared)
+        except Exception as error:  # a failed job must not lose the others
+            records[job.name] = {"error": _one_line(error)}
+    programs = {k: _COMPILES[k] - before[k] for k in PROGRAM_COUNTS[2:]}
+    programs["chunk_programs"] = len(cache.compiled) if cache else 0
+    programs["chunk_compile_s"] = sum(t for _, t in cache.compiled) if cache else 0.0
+    return {"records": records, "programs": programs}
+
+
+def groups(jobs: list[Job], options: JobOptions, devices: int) -> list[tuple[Job, ...]]:
+    """The jobs as tasks, in job order: jobs of one kind with one `Kind.share` key (one
+    compiled program) form a group, every other job is alone; a job that needs another
+    job of its group leaves it."""
+    by_key: dict[tuple[str, str], list[Job]] = {}
+    tasks: list[list[Job]] = []
+    for job in jobs:
+        key = KINDS[job.kind].share(job.spec, options, devices)
+        if key is None:
+            tasks.append([job])
+        elif (job.kind, key) in by_key:
+            by_key[job.kind, key].append(job)
+        else:
+            by_key[job.kind, key] = [job]
+            tasks.append(by_key[job.kind, key])
+    result: list[tuple[Job, ...]] = []
+    for task in tasks:
+        names = {j.name for j in task}
+        inner = tuple(j for j in task if not names & set(j.after))
+        result += [inner] if inner else []
+        result += [(j,) for j in task if names & set(j.after)]
+    return result
 
 
 def job_progress(suite_dir: Path, job: Job) -> float:
@@ -191,10 +286,10 @@ class LocalBackend:
         )
         self.devices, self.options = devices, options
 
-    def submit(self, job: Job, suite_dir: Path) -> futures.Future:
+    def submit(self, task: tuple[Job, ...], suite_dir: Path) -> futures.Future:
         return self.pool.submit(
-            execute_job,
-            job,
+            execute_group,
+            task,
             str(suite_dir),
             self.devices,
             self.options.job_options,
@@ -218,13 +313,13 @@ class RayBackend:
         self.ray = ray
         if not ray.is_initialized():
             ray.init(address=options.ray_address, include_dashboard=False, log_to_driver=False)
-        self.remote = ray.remote(num_cpus=devices, max_calls=1)(execute_job)
+        self.remote = ray.remote(num_cpus=devices, max_calls=1)(execute_group)
         self.devices, self.options = devices, options
 
-    def submit(self, job: Job, suite_dir: Path) -> futures.Future:
+    def submit(self, task: tuple[Job, ...], suite_dir: Path) -> futures.Future:
         path = str(Path(suite_dir).resolve())
         job_options, plugins = self.options.job_options, self.options.plugins
-        return self.remote.remote(job, path, self.devices, job_options, plugins).future()
+        return self.remote.remote(task, path, self.devices, job_options, plugins).future()
 
     def shutdown(self) -> None:
         pass
@@ -244,6 +339,10 @@ class SweepResult:
     wall_s: float
     ran: list[str] = dataclasses.field(default_factory=list)
     """The jobs this call ran or resumed (empty: every selected job had finished)."""
+    programs: dict[str, Any] = dataclasses.field(default_factory=dict)
+    """The programs this call compiled: "tasks" (groups of jobs on one program),
+    "training_programs" (training tasks: the distinct training programs planned) and the
+    sums of `PROGRAM_COUNTS` over the tasks."""
 
 
 def _job_entry(job: Job, status: str) -> dict[str, Any]:
@@ -318,6 +417,11 @@ def run(
     workers = options.workers or (cpu_count() if options.backend == "local" else len(todo) or 1)
     workers = max(1, min(workers, len(todo) or 1))
     devices = options.devices_per_job or max(1, cpu_count() // workers)
+    tasks = groups(todo, options.job_options, devices)
+    programs: dict[str, Any] = {
+        "tasks": len(tasks),
+        "training_programs": sum(1 for t in tasks if t[0].kind == "train"),
+    } | {k: 0 for k in PROGRAM_COUNTS}
     display = SweepDisplay(jobs, suite_dir, statuses, enabled=options.progress)
     t0 = time.perf_counter()
     failed: list[str] = []
@@ -325,49 +429,64 @@ def run(
     try:
         if todo:
             backend = (
-                LocalBackend(workers, devices, options)
+                LocalBackend(min(workers, len(tasks)), devices, options)
                 if options.backend == "local"
                 else RayBackend(devices, options)
             )
-            waiting = list(todo)
+            # largest first (the shortest makespan), each once its inputs are finished
+            waiting = sorted(tasks, key=lambda t: -sum(job_cost(j) for j in t))
             selected = {job.name for job in jobs}
-            pending: dict[futures.Future, Job] = {}
+            pending: dict[futures.Future, tuple[Job, ...]] = {}
             display.start([job.name for job in todo])
             while waiting or pending:
-                for job in list(waiting):  # submit every job whose inputs are finished
+                for task in list(waiting):  # submit every task whose inputs are finished
                     # a need outside this selection was checked to be finished on disk
-                    states = [entries[d]["status"] for d in job.after if d in selected]
+                    inside = {job.name for job in task}
+                    needs = {d for job in task for d in job.after if d in selected} - inside
+                    states = [entries[d]["status"] for d in needs]
                     if any(state == "failed" for state in states):
-                        waiting.remove(job)
-                        entry = entries[job.name]
-                        entry.update(status="failed", error="a job it needs failed")
-                        failed.append(job.name)
-                        display.finished(job.name, entry)
+                        waiting.remove(task)
+                        for job in task:
+                            entry = entries[job.name]
+                            entry.update(status="failed", error="a job it needs failed")
+                            failed.append(job.name)
+                            display.finished(job.name, entry)
                     elif all(state == "finished" for state in states):
-                        waiting.remove(job)
-                        pending[backend.submit(job, suite_dir)] = job
+                        waiting.remove(task)
+                        pending[backend.submit(task, suite_dir)] = task
                 if not pending:
                     continue
                 done, _ = futures.wait(pending, timeout=0.5, return_when=futures.FIRST_COMPLETED)
                 for future in done:
-                    job = pending.pop(future)
-                    entry = entries[job.name]
+                    task = pending.pop(future)
                     try:
-                        record = future.result()
-                        entry.update(status="finished", wall_s=record["wall_s"])
-                        entry.pop("error", None)
-                    except Exception as error:  # a failed job must not lose the others
-                        entry.update(status="failed", error=_one_line(error))
-                        failed.append(job.name)
-                    display.finished(job.name, entry)
+                        result = future.result()
+                        records = result["records"]
+                        for name in PROGRAM_COUNTS:
+                            programs[name] += result["programs"][name]
+                    except Exception as error:  # a lost worker must not lose the others
+                        records = {job.name: {"error": _one_line(error)} for job in task}
+                    for job in task:
+                        entry, record = entries[job.name], records[job.name]
+                        if "error" in record:
+                            entry.update(status="failed", error=record["error"])
+                            failed.append(job.name)
+                        else:
+                            entry.update(status="finished", wall_s=record["wall_s"])
+                            entry.pop("error", None)
+                        display.finished(job.name, entry)
+                    index["programs"] = programs
                     write_index(suite_dir, index)
                 display.refresh()
+            index["programs"] = programs
             write_index(suite_dir, index)
     finally:
-        display.close()
+        display.close(programs if todo else None)
         if backend is not None:
             backend.shutdown()
-    return SweepResult(index, failed, time.perf_counter() - t0, [job.name for job in todo])
+    return SweepResult(
+        index, failed, time.perf_counter() - t0, [job.name for job in todo], programs
+    )
 
 
 def _one_line(error: BaseException) -> str:
@@ -480,6 +599,19 @@ class SweepDisplay:
             extra = f"; running: {', '.join(running)}" if running else ""
             print(self.headline() + extra, file=sys.stderr, flush=True)
 
-    def close(self) -> None:
+    def close(self, programs: dict[str, Any] | None = None) -> None:
         if self._live is not None:
             self._live.stop()
+        if self.enabled and programs:
+            print(programs_line(programs), file=sys.stderr, flush=True)
+
+
+def programs_line(programs: dict[str, Any]) -> str:
+    """One line on the programs a sweep compiled (index.json "programs")."""
+    return (
+        f"programs: {programs['training_programs']} training programs for "
+        f"{programs['tasks']} tasks; chunk programs compiled {programs['chunk_programs']} "
+        f"({programs['chunk_compile_s']:.0f} s); XLA compiles {programs['xla_compiles']} "
+        f"({programs['xla_compile_s']:.0f} s, {programs['persistent_cache_hits']} from the "
+        "persistent cache)"
+    )

@@ -1,0 +1,204 @@
+"""How many compiled programs a suite's training jobs need, and what each costs.
+
+    python benchmarks/suite_programs.py [--full] [--devices 1] [--verify] [--compile]
+
+For every training job of `pimbot reproduce [--quick]` it prints the job's
+program key (`programs.program_key`: what the compiled chunk depends on, the
+attack's and defenses' numbers left out) and its group key
+(`programs.share_key`: the same after folding the strategy attacks into one
+`programs.Strategies` program, which is how `pimbot reproduce` now plans its
+tasks). Then the groups, what tells them apart, and the relative training cost
+of each.
+
+--verify lowers every job's chunk as the sweep would run it (the group's
+`Strategies` form where the group mixes strategy attacks) and checks that the
+jobs of a group lower to one program text and different groups to different
+ones. --compile compiles one job per group and prints each compile time (the
+persistent cache is off for it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import os
+import sys
+import time
+
+os.environ.setdefault("PIMBOT_CACHE_DIR", "off")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--full", action="store_true", help="the published suite (10 seeds)")
+    parser.add_argument("--devices", type=int, default=1, help="devices per job (sweep default)")
+    parser.add_argument("--chunk-iterations", type=int, default=2000)
+    parser.add_argument("--verify", action="store_true", help="lower every job and compare")
+    parser.add_argument("--compile", action="store_true", help="compile one job per group")
+    parser.add_argument(
+        "--timings", metavar="DIR", help="instead: where a finished suite directory's time went"
+    )
+    args = parser.parse_args()
+    if args.timings:
+        timings(args.timings)
+        return
+
+    from pimbot.experiment import presets, programs, runner
+    from pimbot.experiment.config import resolve
+    from pimbot.experiment.jobs import JobOptions, train_strategies
+    from pimbot.experiment.sweep import groups
+
+    jobs = [j for j in presets.suite(quick=not args.full) if j.kind == "train"]
+    options = JobOptions(chunk_iterations=args.chunk_iterations)
+    resolved = {j.name: resolve(j.spec) for j in jobs}
+    shape = {
+        n: runner.program_shape(r, args.chunk_iterations, False, args.devices)
+        for n, r in resolved.items()
+    }
+    own = {n: programs.program_key(r, *shape[n], args.devices) for n, r in resolved.items()}
+    tasks = groups(jobs, options, args.devices)
+    suite = "full" if args.full else "quick"
+    print(f"{suite} suite: {len(jobs)} training jobs")
+    print(f"  distinct programs, one per structure (before): {len(set(own.values()))}")
+    print(f"  programs after folding the strategy attacks (tasks): {len(tasks)}")
+    total = sum(j.spec.iterations * j.spec.seeds for j in jobs)
+    print(f"  seed-iterations in all: {total:,}")
+    print()
+
+    def describe(job) -> str:
+        r = resolved[job.name]
+        env = r.run.env_id + "".join(f" {k}={v}" for k, v in r.run.env_params)
+        defenses = "+".join(d.name for d in r.defenses) or "-"
+        periods, seeds = shape[job.name]
+        return (
+            f"{r.run.learner:<12} {env:<42} defenses {defenses:<50} "
+            f"{periods}×{r.eval_period} it/call, {seeds} seeds"
+        )
+
+    compile_s = []
+    texts: dict[str, str] = {}
+    for number, task in enumerate(tasks):
+        strategies = train_strategies([j.spec for j in task]) if len(task) > 1 else None
+        kinds = sorted({resolved[j.name].attack.name for j in task})
+        cost = sum(j.spec.iterations * j.spec.seeds for j in task)
+        head = f"[{number:2d}] {len(task)} job(s), {cost / total:5.1%} of the work"
+        print(f"{head}: {describe(task[0])}")
+        print(f"     attacks: {', '.join(kinds)}")
+        print(f"     jobs: {', '.join(j.name for j in task)}")
+        if args.verify or args.compile:
+            for job in task if args.verify else task[:1]:
+                r = resolved[job.name]
+                if strategies and programs.shareable(r.attack):
+                    r = programs.with_attack(r, programs.shared_attack(r.attack, strategies))
+                t0 = time.perf_counter()
+                lowered = lower(runner, r, *shape[job.name])
+                lower_s = time.perf_counter() - t0
+                digest = hashlib.sha256(lowered.as_text().encode()).hexdigest()[:16]
+                texts[job.name] = digest
+                line = f"     {job.name}: program text {digest}, traced+lowered in {lower_s:.1f} s"
+                if args.compile and job is task[0]:
+                    t0 = time.perf_counter()
+                    lowered.compile()
+                    compile_s.append(time.perf_counter() - t0)
+                    line += f", compiled in {compile_s[-1]:.1f} s"
+                print(line, flush=True)
+    if args.verify:
+        by_task = [{texts[j.name] for j in task} for task in tasks]
+        one_each = all(len(t) == 1 for t in by_task)
+        distinct = len(set().union(*by_task)) == len(tasks)
+        print(f"\nverify: every group one program text: {one_each}; groups distinct: {distinct}")
+        if not (one_each and distinct):
+            sys.exit(1)
+    if compile_s:
+        print(
+            f"\ncompile (one per group, persistent cache off): {len(compile_s)} programs, "
+            f"sum {sum(compile_s):.0f} s, mean {sum(compile_s) / len(compile_s):.1f} s"
+        )
+    print("\nwhat tells the groups apart (distinct values over the groups):")
+    first = [resolved[t[0].name] for t in tasks]
+    fields = {
+        "learner": {r.run.learner for r in first},
+        "learner config": {repr(r.learner_config) for r in first},
+        "env and its parameters": {(r.run.env_id, r.run.env_params) for r in first},
+        "attack structure (strategies folded; learning attacks by mode)": {
+            "strategies" if programs.shareable(r.attack) else programs.member_kind(r.attack)
+            for r in first
+        },
+        "defense sets": {"+".join(d.name for d in r.defenses) for r in first},
+        "periods per call × eval period, seeds": {
+            (shape[t[0].name], r.eval_period) for t, r in zip(tasks, first, strict=True)
+        },
+    }
+    for name, values in fields.items():
+        print(f"  {len(values):3d} {name}")
+
+
+def timings(suite_dir: str) -> None:
+    """Sums over a finished suite's jobs: compile (trace, lower, compile: summary.json),
+    training proper (the chunks' times, from metrics.csv perf/iters_per_s) and the rest
+    of each job's wall time (init, checkpoints, metrics, summaries, locks), by kind."""
+    import csv
+    import json
+    from pathlib import Path
+
+    root = Path(suite_dir)
+    index = json.loads((root / "index.json").read_text())
+    sums: dict[str, list[float]] = {}
+    for entry in index["jobs"]:
+        wall = entry.get("wall_s")
+        if wall is None:
+            continue
+        kind = entry["kind"]
+        compile_s = train_s = 0.0
+        if kind == "train":
+            summary = json.loads((root / entry["name"] / "summary.json").read_text())
+            compile_s = summary.get("compile_s", 0.0)
+            first_seed = str(summary["seeds"][0])
+            with open(root / entry["name"] / "metrics.csv", newline="") as f:
+                rows = [r for r in csv.DictReader(f) if r["seed"] == first_seed]
+            train_s = chunk_seconds(rows)
+        total = sums.setdefault(kind, [0, 0.0, 0.0, 0.0, 0.0])
+        total[0] += 1
+        total[1] += wall
+        total[2] += compile_s
+        total[3] += train_s
+        total[4] += wall - compile_s - train_s
+    programs = index.get("programs")
+    print(f"{suite_dir}: sums over jobs (seconds; jobs ran side by side)")
+    print(f"  {'kind':<11} {'jobs':>5} {'wall':>8} {'compile':>8} {'train':>8} {'other':>8}")
+    for kind, (n, wall, comp, train, other) in sums.items():
+        print(f"  {kind:<11} {n:>5} {wall:>8.0f} {comp:>8.0f} {train:>8.0f} {other:>8.0f}")
+    if programs:
+        from pimbot.experiment.sweep import programs_line
+
+        print("  " + programs_line(programs))
+
+
+def chunk_seconds(rows: list[dict]) -> float:
+    """Training seconds of one seed's rows: every chunk's rows share its perf/iters_per_s,
+    so a chunk's time is its iterations over that rate."""
+    seconds, chunk_start, rate, last = 0.0, 0, None, 0
+    for row in rows:
+        value, iteration = float(row["perf/iters_per_s"]), int(row["iteration"])
+        if rate is not None and value != rate:
+            seconds += (last - chunk_start) / rate
+            chunk_start = last
+        rate, last = value, iteration
+    if rate is not None:
+        seconds += (last - chunk_start) / rate
+    return seconds
+
+
+def lower(runner, resolved, periods: int, seeds: int):
+    import jax
+
+    keys = runner.seed_keys(resolved.run.first_seed, seeds)
+    states = runner.make_init_fn(resolved)(keys, resolved.attack, resolved.defenses)
+    roots = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
+    return runner.make_chunk_fn(resolved, periods).lower(
+        states, roots, resolved.attack, resolved.defenses
+    )
+
+
+if __name__ == "__main__":
+    main()
