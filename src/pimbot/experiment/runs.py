@@ -73,7 +73,13 @@ def load_run(run_dir: str | Path) -> LoadedRun:
     # Leaves are restored with their saved leading (seed) axis; state fields added to the
     # learner after the run was trained keep the template's (unbatched, unused) values.
     target = jax.tree.map(lambda x: x[None], template)
-    saved_dict = flax.serialization.msgpack_restore(state_bytes)
+    try:
+        saved_dict = flax.serialization.msgpack_restore(state_bytes)
+    except Exception as error:  # not a msgpack state: damaged
+        raise store.DamagedRunDir(
+            f"{run_dir / store.CHECKPOINT_DIR}: damaged (the state does not load: "
+            f"{type(error).__name__}); {store.RESTART_HINT}"
+        ) from None
     merged = _merge(flax.serialization.to_state_dict(target), saved_dict)
     states = flax.serialization.from_state_dict(target, merged)
     seeds = tuple(range(resolved.run.first_seed, resolved.run.first_seed + resolved.run.seeds))

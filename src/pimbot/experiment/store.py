@@ -3,16 +3,29 @@
 Writes are crash-safe: the checkpoint and JSON files are replaced atomically,
 and metrics rows past the last checkpoint are dropped on resume, so a run
 killed at any moment resumes with no duplicated or missing rows.
+
+Reads are checked: a JSON file that does not parse, a checkpoint whose bytes do
+not match the SHA-256 its metadata records, and a metrics.csv that lacks rows the
+checkpoint has passed raise `DamagedRunDir`, one line saying what is wrong and
+how to recover, instead of resuming from something silently different.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import fcntl
+import hashlib
 import json
+import math
 import os
+import shutil
 import subprocess
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
+
+from pimbot.envs.core import InvalidParameter
 
 CONFIG = "config.json"
 METRICS = "metrics.csv"
@@ -20,6 +33,48 @@ SUMMARY = "summary.json"
 CHECKPOINT_DIR = "checkpoint"
 STATE_FILE = "state.msgpack"
 STATE_META = "meta.json"
+RESTART_HINT = "rerun with --restart to start this run over, or restore the file"
+
+
+class DamagedRunDir(InvalidParameter):
+    """A run directory whose files are unreadable or disagree with each other."""
+
+
+class RunDirBusy(InvalidParameter):
+    """Another process holds the run directory's lock."""
+
+
+def lock_path(run_dir: Path) -> Path:
+    """The lock file of a run directory (beside it; the sweep's job lock is the same)."""
+    run_dir = Path(run_dir)
+    return run_dir.parent / f".{run_dir.name}.lock"
+
+
+@contextlib.contextmanager
+def locked(run_dir: Path) -> Iterator[None]:
+    """Holds `run_dir`'s exclusive lock, or raises RunDirBusy at once if another process
+    holds it (two `pimbot train` into one directory would write every row twice)."""
+    path = lock_path(run_dir)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w") as lock:
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise RunDirBusy(
+                f"out: {run_dir} is in use by another pimbot process; wait for it to finish "
+                "or stop it, then rerun"
+            ) from None
+        yield
+
+
+def clear_run(run_dir: Path) -> None:
+    """Removes what a run wrote in `run_dir` (for --restart); other files stay."""
+    run_dir = Path(run_dir)
+    for name in (CONFIG, METRICS, METRICS + ".tmp", SUMMARY, "tracking.json"):
+        (run_dir / name).unlink(missing_ok=True)
+    for name in (CHECKPOINT_DIR, "tensorboard"):
+        if (run_dir / name).is_dir():
+            shutil.rmtree(run_dir / name)
 
 
 def write_atomic(path: Path, data: bytes) -> None:
@@ -32,12 +87,30 @@ def write_atomic(path: Path, data: bytes) -> None:
     os.replace(tmp, path)
 
 
+def finite_json(obj: Any) -> Any:
+    """`obj` with every non-finite float replaced by None (strict JSON has no NaN)."""
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, dict):
+        return {k: finite_json(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [finite_json(v) for v in obj]
+    return obj
+
+
 def write_json(path: Path, obj: Any) -> None:
-    write_atomic(path, (json.dumps(obj, indent=2, sort_keys=True, default=str) + "\n").encode())
+    """Strictly valid JSON (non-finite numbers written as null), atomically."""
+    text = json.dumps(finite_json(obj), indent=2, sort_keys=True, default=str, allow_nan=False)
+    write_atomic(path, (text + "\n").encode())
 
 
 def read_json(path: Path) -> Any:
-    return json.loads(path.read_text())
+    """The JSON in `path`; DamagedRunDir (one line) if it is not valid JSON."""
+    try:
+        return json.loads(Path(path).read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as error:
+        reason = getattr(error, "msg", None) or "not UTF-8 text"
+        raise DamagedRunDir(f"{path}: damaged (not valid JSON: {reason}); {RESTART_HINT}") from None
 
 
 def git_commit() -> str | None:
@@ -56,18 +129,42 @@ def git_commit() -> str | None:
 
 
 def save_checkpoint(run_dir: Path, state_bytes: bytes, iteration: int) -> None:
+    """The state and its metadata (iteration, size and SHA-256 of the state bytes)."""
     ckpt = run_dir / CHECKPOINT_DIR
     ckpt.mkdir(exist_ok=True)
     write_atomic(ckpt / STATE_FILE, state_bytes)
-    write_json(ckpt / STATE_META, {"iteration": iteration})
+    meta = {
+        "iteration": iteration,
+        "bytes": len(state_bytes),
+        "sha256": hashlib.sha256(state_bytes).hexdigest(),
+    }
+    write_json(ckpt / STATE_META, meta)
 
 
 def load_checkpoint(run_dir: Path) -> tuple[bytes, int] | None:
-    """(state bytes, iteration) of the last checkpoint, or None."""
+    """(state bytes, iteration) of the last checkpoint, or None.
+
+    Raises:
+        DamagedRunDir: the metadata is unreadable or the state bytes do not match it.
+    """
     ckpt = run_dir / CHECKPOINT_DIR
-    if not (ckpt / STATE_META).exists() or not (ckpt / STATE_FILE).exists():
+    if not (ckpt / STATE_META).exists() and not (ckpt / STATE_FILE).exists():
         return None
-    return (ckpt / STATE_FILE).read_bytes(), int(read_json(ckpt / STATE_META)["iteration"])
+    if not (ckpt / STATE_META).exists() or not (ckpt / STATE_FILE).exists():
+        missing = STATE_META if not (ckpt / STATE_META).exists() else STATE_FILE
+        raise DamagedRunDir(f"{ckpt}: damaged ({missing} is missing); {RESTART_HINT}")
+    meta = read_json(ckpt / STATE_META)
+    state_bytes = (ckpt / STATE_FILE).read_bytes()
+    iteration = meta.get("iteration") if isinstance(meta, dict) else None
+    if isinstance(iteration, bool) or not isinstance(iteration, int) or iteration < 0:
+        raise DamagedRunDir(f"{ckpt / STATE_META}: damaged (no valid iteration); {RESTART_HINT}")
+    digest = meta.get("sha256")
+    if digest is not None and hashlib.sha256(state_bytes).hexdigest() != digest:
+        raise DamagedRunDir(
+            f"{ckpt / STATE_FILE}: damaged (its SHA-256 differs from the one recorded at "
+            f"iteration {iteration}: the file was changed); {RESTART_HINT}"
+        )
+    return state_bytes, iteration
 
 
 def append_rows(run_dir: Path, columns: list[str], rows: list[dict[str, Any]]) -> None:
@@ -83,15 +180,52 @@ def append_rows(run_dir: Path, columns: list[str], rows: list[dict[str, Any]]) -
         os.fsync(f.fileno())
 
 
-def truncate_rows(run_dir: Path, max_iteration: int) -> None:
-    """Drops metric rows written after the checkpoint at `max_iteration`."""
+def _complete(row: dict[str, Any], columns: list[str]) -> bool:
+    """A row with every column (a row cut by a crash mid-write lacks the last ones)."""
+    if None in row or any(row.get(c) is None for c in columns):
+        return False
+    try:
+        int(row["iteration"])
+    except (KeyError, TypeError, ValueError):
+        return False
+    return True
+
+
+def truncate_rows(run_dir: Path, max_iteration: int, expected_rows: int | None = None) -> None:
+    """Drops metric rows written after the checkpoint at `max_iteration`.
+
+    Rows are fsynced before the checkpoint is saved, so only rows past the checkpoint can
+    be missing or cut short by a crash; with `expected_rows` (the rows the checkpoint has
+    passed) fewer or incomplete rows up to it raise DamagedRunDir.
+    """
     path = run_dir / METRICS
     if not path.exists():
+        if expected_rows:
+            raise DamagedRunDir(
+                f"{path}: missing, but the checkpoint is at iteration {max_iteration} "
+                f"({expected_rows} rows); {RESTART_HINT}"
+            )
         return
     with open(path, newline="") as f:
         reader = csv.DictReader(f)
-        columns = reader.fieldnames or []
-        rows = [r for r in reader if int(r["iteration"]) <= max_iteration]
+        columns = list(reader.fieldnames or [])
+        rows = []
+        for number, row in enumerate(reader, start=2):
+            if not _complete(row, columns):
+                if expected_rows is not None and number - 2 < expected_rows:
+                    raise DamagedRunDir(
+                        f"{path}: damaged (line {number} is incomplete, before the "
+                        f"checkpoint at iteration {max_iteration}); {RESTART_HINT}"
+                    )
+                break  # cut by a crash while appending rows past the checkpoint
+            if int(row["iteration"]) <= max_iteration:
+                rows.append(row)
+    if expected_rows is not None and len(rows) != expected_rows:
+        raise DamagedRunDir(
+            f"{path}: holds {len(rows)} rows up to the checkpoint at iteration "
+            f"{max_iteration}, expected {expected_rows} (rows deleted or truncated); "
+            f"{RESTART_HINT}"
+        )
     if not columns:
         path.unlink()
         return
