@@ -85,8 +85,45 @@ def test_reference_sweep_writes_every_run_and_the_index(reference):
     assert (reference / "profile/er21_paired/summary.json").exists()
     robot = store.read_json(reference / "robot/er21_clean/summary.json")
     assert robot["spec"]["run"] == "attacks/er21_clean" and len(robot["seeds"]) == 2
+    # er21 clean and bypass differ only in the strategy attack: one task, one program
+    programs = index["programs"]
+    assert programs["tasks"] == 4 and programs["training_programs"] == 2, programs
+    assert programs["chunk_programs"] == 2 and programs["xla_compiles"] > 2, programs
     again = sweep.run(JOBS, reference, "tiny", sweep.SweepOptions(**OPTIONS))
     assert again.wall_s < 5, "finished jobs must be skipped"
+
+
+def test_groups_put_jobs_on_one_program_together_and_keep_dependencies_apart():
+    import dataclasses
+
+    from pimbot.experiment.config import RunConfig
+    from pimbot.experiment.jobs import Job, JobOptions
+
+    er21 = dict(env_id="escape_room-v0", iterations=1000, eval_period=100, seeds=2)
+    jobs = [
+        Job("a/clean", "train", RunConfig(**er21)),
+        Job("a/ipd", "train", RunConfig(env_id="ipd-v0", iterations=1000, seeds=2)),
+        Job("a/fake", "train", RunConfig(**er21, attack="fake_incentive")),
+        Job(
+            "a/fake_10",
+            "train",
+            RunConfig(**er21, attack="fake_incentive", attack_params=(("amount", 10.0),)),
+        ),
+        Job("a/admo", "train", RunConfig(**er21, attack="admo")),
+        Job("a/more_seeds", "train", RunConfig(**{**er21, "seeds": 3})),
+        Job("a/after_clean", "train", RunConfig(**er21, attack="bypass"), after=("a/clean",)),
+    ]
+    jobs.append(dataclasses.replace(jobs[0], name="robot/x", kind="robot_eval", spec=None))
+    tasks = sweep.groups(jobs, JobOptions(chunk_iterations=200), devices=1)
+    names = [[j.name for j in task] for task in tasks]
+    assert names == [
+        ["a/clean", "a/fake", "a/fake_10"],
+        ["a/after_clean"],
+        ["a/ipd"],
+        ["a/admo"],
+        ["a/more_seeds"],
+        ["robot/x"],
+    ]
 
 
 def test_sigkill_mid_sweep_then_rerun_completes_with_identical_results(reference, tmp_path):
