@@ -1,18 +1,25 @@
-"""Training throughput of the Reciprocator learner: seed-updates/s and parallel episodes/s.
+"""Reciprocator time per update and compile time: the original IPD configuration and the
+learned-VoI path.
 
-    python benchmarks/reciprocator_throughput.py [--configs ipd er21 sh2] [--seeds 10]
-        [--num-envs 128] [--updates 20] [--repeats 3]
+    taskset -c 0 python benchmarks/reciprocator_throughput.py [--configs ipd_matrix ...]
+        [--seeds 1] [--updates 10] [--repeats 3] [--original-s 0.85]
 
-Times the runner's compiled chunk (`make_chunk_fn`: `updates` training
-iterations, then one evaluation), built exactly as `pimbot train` builds it
-(seed keys, `jit(vmap(init))`, seed sharding over the host devices). One update
-= one batch of `num_envs` parallel episodes per seed, a VoI-model refit every
-`voi_refit_period` updates and one PPO update, so
+Configurations (2-player IPD at the original's batch: 2048 games × 32 steps per update):
 
-* seed-updates/s = updates × seeds / median call time,
-* parallel episodes/s = seed-updates/s × num_envs (environment steps/s = that × T).
+* `ipd_matrix`  — the matrix-game default, the original's IPD agent: exact VoI, one-step
+  grudge, width-2 networks (what `pimbot train ipd-v0 max_steps=32 --learner
+  reciprocator` runs);
+* `ipd_learned` — the same batch with the learned VoI models, 64×64 networks and the
+  spec's accumulated balance (`--hp voi=learned ...`);
+* `er21`        — Escape Room ER(2,1) with its default (learned VoI, 128 episodes/update).
 
-Timings taken while other processes load the machine are distorted.
+It times the runner's compiled chunk (`make_chunk_fn`: `updates` training iterations
+and one evaluation), built as `pimbot train` builds it, and prints the median time per
+update per seed (call time / updates / seeds; with one seed, the time of one update),
+the compile time, and with `--original-s` the ratio to the original code's time per
+update (the issue's measurement of the original torch code on one pinned core: 0.85 s;
+benchmarks/original/ measures it side by side). Pin to one core (`taskset -c 0`) for a
+per-core figure; timings taken while other processes load the machine are distorted.
 """
 
 from __future__ import annotations
@@ -35,29 +42,33 @@ from pimbot.experiment.runner import (  # noqa: E402
     seed_sharding,
 )
 
+IPD32 = (("max_steps", 32),)
+LEARNED = (
+    ("voi", "learned"),
+    ("grudge", "accumulated"),
+    ("policy_hidden", (64, 64)),
+    ("voi_refit_period", 2),
+    ("voi_history", 3),
+)
 CONFIGS = {
-    "ipd": ("ipd-v0", ()),
-    "ipd32": ("ipd-v0", (("max_steps", 32),)),
-    "er21": ("escape_room-v0", ()),
-    "er43": ("escape_room-v0", (("min_at_lever", 3), ("n_agents", 4))),
-    "sh2": ("stag_hunt-v0", ()),
-    "sh4": ("stag_hunt-v0", (("n_players", 4),)),
+    "ipd_matrix": ("ipd-v0", IPD32, ()),
+    "ipd_learned": ("ipd-v0", IPD32, LEARNED + (("num_envs", 2048),)),
+    "er21": ("escape_room-v0", (), ()),
 }
 
 
-def measure(name: str, seeds: int, num_envs: int, updates: int, repeats: int) -> dict:
-    env_id, params = CONFIGS[name]
+def measure(name: str, seeds: int, updates: int, repeats: int) -> dict:
+    env_id, params, hparams = CONFIGS[name]
     run = RunConfig(
         env_id,
         params,
         learner="reciprocator",
-        hparams=(("num_envs", num_envs),),
+        hparams=hparams,
         seeds=seeds,
         iterations=updates,
         eval_period=updates,
     )
     resolved = resolve(run)
-    env = resolved.env
     sharding, padded = seed_sharding(seeds)
     keys = seed_keys(0, padded)
     states = init_states(resolved, jax.vmap(lambda k: jax.random.fold_in(k, 0))(keys))
@@ -72,46 +83,44 @@ def measure(name: str, seeds: int, num_envs: int, updates: int, repeats: int) ->
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        states, metrics = jax.block_until_ready(chunk(states, roots, *hooks))
+        states, _ = jax.block_until_ready(chunk(states, roots, *hooks))
         times.append(time.perf_counter() - t0)
-    call_s = statistics.median(times)
-    seed_updates = updates * seeds / call_s
+    cfg = resolved.learner_config
     return {
         "config": name,
-        "agents": env.num_agents,
-        "T": env.max_steps,
-        "seeds": seeds,
-        "num_envs": num_envs,
+        "T": resolved.env.max_steps,
+        "num_envs": cfg.num_envs,
+        "voi": cfg.voi,
+        "hidden": "x".join(map(str, cfg.policy_hidden)),
         "compile_s": compile_s,
-        "call_s": call_s,
-        "seed_updates_per_s": seed_updates,
-        "episodes_per_s": seed_updates * num_envs,
-        "env_steps_per_s": seed_updates * num_envs * env.max_steps,
+        "update_s": statistics.median(times) / updates / seeds,
     }
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--configs", nargs="+", default=["ipd", "er21", "sh2"], choices=CONFIGS)
-    parser.add_argument("--seeds", type=int, default=10)
-    parser.add_argument("--num-envs", type=int, default=128)
+    parser.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=CONFIGS)
+    parser.add_argument("--seeds", type=int, default=1)
     parser.add_argument("--updates", type=int, default=10)
     parser.add_argument("--repeats", type=int, default=3)
-    args = parser.parse_args()
-    print(f"backend {jax.default_backend()}, {len(jax.devices())} device(s)")
-    header = (
-        f"{'config':7} {'N':>2} {'T':>3} {'seeds':>5} {'envs':>5} {'compile s':>9} "
-        f"{'call s':>7} {'seed-upd/s':>10} {'episodes/s':>11} {'env steps/s':>12}"
+    parser.add_argument(
+        "--original-s", type=float, default=None, help="the original's seconds per update"
     )
-    print(header)
+    args = parser.parse_args()
+    print(f"backend {jax.default_backend()}, {len(jax.devices())} device(s), seeds {args.seeds}")
+    print(
+        f"{'config':12} {'T':>3} {'envs':>5} {'voi':>8} {'hidden':>6} {'compile s':>9} "
+        f"{'s/update':>9}" + (f" {'× original':>10}" if args.original_s else "")
+    )
     for name in args.configs:
-        r = measure(name, args.seeds, args.num_envs, args.updates, args.repeats)
-        print(
-            f"{r['config']:7} {r['agents']:>2} {r['T']:>3} {r['seeds']:>5} {r['num_envs']:>5} "
-            f"{r['compile_s']:>9.1f} {r['call_s']:>7.2f} {r['seed_updates_per_s']:>10.1f} "
-            f"{r['episodes_per_s']:>11.0f} {r['env_steps_per_s']:>12.0f}",
-            flush=True,
+        r = measure(name, args.seeds, args.updates, args.repeats)
+        line = (
+            f"{r['config']:12} {r['T']:>3} {r['num_envs']:>5} {r['voi']:>8} {r['hidden']:>6} "
+            f"{r['compile_s']:>9.1f} {r['update_s']:>9.4f}"
         )
+        if args.original_s:
+            line += f" {args.original_s / r['update_s']:>10.1f}"
+        print(line, flush=True)
 
 
 if __name__ == "__main__":

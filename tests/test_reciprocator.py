@@ -1,4 +1,5 @@
-"""Reciprocator: value of influence, balance recursion, weight 0 = PPO, N players, jit/vmap."""
+"""Reciprocator: value of influence (learned and exact), balance recursion, weight 0 = PPO,
+the tabulated matrix-game path, N players, jit/vmap, VoI metrics, IPD cooperation."""
 
 import dataclasses
 
@@ -12,13 +13,19 @@ from pimbot.attacks import ADMO, Bypass, Reverse
 from pimbot.contracts.attack import NO_ATTACK
 from pimbot.envs.core import InvalidParameter
 from pimbot.experiment.config import RunConfig, resolve
-from pimbot.learners import influence, reciprocator
+from pimbot.learners import exact_voi, influence, reciprocator, tabular
 from pimbot.rollout import rollout
 
 IPD = envs.make("ipd-v0")
-# Small networks and batches: the tests check the mechanics, not learning speed.
+COOP_ENVS, COOP_ITERATIONS, COOP_RATE = 256, 100, 0.9  # see the cooperation test
+# Small networks and batches: the tests check the mechanics, not learning speed. SMALL is
+# the general agent (learned VoI, accumulated balance); MATRIX the matrix-game default.
 SMALL = dataclasses.replace(
     learners.default_config("reciprocator", "ipd-v0"),
+    voi="learned",
+    grudge="accumulated",
+    voi_refit_period=2,
+    voi_history=3,
     num_envs=8,
     policy_hidden=(16,),
     voi_hidden=(16,),
@@ -81,7 +88,7 @@ def test_balance_recursion_on_a_hand_computed_sequence():
     # Reciprocal reward uses B_{t−1}: agent 0: 0, −1·0, 1.5·3; agent 1: 0, 1·2, −1.5·1.
     np.testing.assert_allclose(rewards, [[0.0, 0.0], [0.0, 2.0], [4.5, -1.5]])
     # The original code's one-step grudge: B_{t−1}[i, j] = VoI(j → i, t − 1) only.
-    grudges, rewards = influence.balance_and_reciprocal_reward(voi, 0.5, one_step_grudge=True)
+    grudges, rewards = influence.balance_and_reciprocal_reward(voi, 0.5, grudge="one_step")
     np.testing.assert_allclose(grudges[:, 0, 1], [0.0, 2.0, 1.0])
     # Agent 0: 0, 0·0, 2·3; agent 1: 0, 1·2, 0·1.
     np.testing.assert_allclose(rewards, [[0.0, 0.0], [0.0, 2.0], [6.0, 0.0]])
@@ -198,6 +205,141 @@ def test_self_centered_adversary_learns_from_env_reward_only():
 
 
 def test_default_configs():
-    assert learners.default_config("reciprocator", "ipd-v0").reciprocal_weight == 5.0
-    assert learners.default_config("reciprocator", "stag_hunt-v0").reciprocal_weight == 1.0
-    assert learners.default_config("nl", "ipd-v0").reciprocal_weight == 0.0
+    ipd = learners.default_config("reciprocator", "ipd-v0")
+    assert (ipd.reciprocal_weight, ipd.voi, ipd.grudge) == (5.0, "exact", "one_step")
+    assert (ipd.policy_hidden, ipd.num_envs, ipd.voi_refit_period, ipd.voi_history) == (
+        (2, 2),
+        2048,
+        3,
+        1,
+    )
+    matrix_hunt = learners.default_config("reciprocator", "stag_hunt_matrix-v0")
+    assert (matrix_hunt.voi, matrix_hunt.reciprocal_weight) == ("exact", 1.0)
+    for env_id in ("escape_room-v0", "stag_hunt-v0"):
+        grid = learners.default_config("reciprocator", env_id)
+        assert (grid.voi, grid.grudge, grid.reciprocal_weight) == ("learned", "accumulated", 1.0)
+    nl = learners.default_config("nl", "ipd-v0")
+    assert (nl.reciprocal_weight, nl.voi) == (0.0, "exact")
+
+
+def test_bad_options_are_refused():
+    with pytest.raises(InvalidParameter, match="voi: must be one of learned, exact"):
+        reciprocator.init(jax.random.PRNGKey(0), IPD, dataclasses.replace(SMALL, voi="tabular"))
+    with pytest.raises(InvalidParameter, match="grudge: must be one of accumulated, one_step"):
+        reciprocator.init(jax.random.PRNGKey(0), IPD, dataclasses.replace(SMALL, grudge="x"))
+    room = envs.make("escape_room-v0")
+    with pytest.raises(InvalidParameter, match="voi: 'exact' needs a matrix game"):
+        reciprocator.init(jax.random.PRNGKey(0), room, dataclasses.replace(SMALL, voi="exact"))
+
+
+# --- the matrix-game path (exact VoI, tabulated play and PPO) --------------------------
+
+
+def test_exact_voi_by_hand_on_the_ipd():
+    """p̂(defect) = 1/4 for both agents in every state: VoI(j → i) = r_i(a) − E_{a'_j} r_i."""
+    probs = jnp.broadcast_to(jnp.array([0.75, 0.25]), (32, 2, 2))
+    rewards = exact_voi.game_tables(IPD).rewards
+    actions = jnp.array([[0, 0], [0, 1], [1, 1]])  # CC, CD, DD
+    voi = exact_voi.value_of_influence(probs, rewards, jnp.array([16, 1, 8]), actions)
+    # CC: agent 1's influence on 0: −1 − (0.75·−1 + 0.25·−3) = 0.5; symmetric.
+    # CD: VoI(1→0) = −3 − (−1.5) = −1.5; VoI(0→1) = 0 − (0.75·0 + 0.25·−2) = 0.5.
+    # DD: VoI(1→0) = −2 − (0.75·0 + 0.25·−2) = −1.5.
+    np.testing.assert_allclose(voi[:, 1, 0], [0.5, -1.5, -1.5])
+    np.testing.assert_allclose(voi[:, 0, 1], [0.5, 0.5, -1.5])
+    np.testing.assert_allclose(voi[:, [0, 1], [0, 1]], 0.0)
+
+
+def test_action_frequencies_are_refit_when_due_and_keep_unvisited_states():
+    freqs = exact_voi.init_frequencies(IPD, history=1)
+    codes = jnp.array([16, 16, 16, 16, 1])
+    actions = jnp.array([[0, 1], [0, 1], [1, 1], [0, 0], [1, 0]])
+    valid = jnp.array([True, True, True, True, False])
+    stale = exact_voi.store_and_refit(freqs, codes, actions, valid, 0, jnp.array(False))
+    np.testing.assert_allclose(stale.probs, 0.5)
+    fresh = exact_voi.store_and_refit(freqs, codes, actions, valid, 0, jnp.array(True))
+    np.testing.assert_allclose(fresh.probs[16], [[0.75, 0.25], [0.25, 0.75]])
+    np.testing.assert_allclose(fresh.probs[1], 0.5)  # only an invalid step visited it
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_tabulated_ppo_equals_the_per_sample_ppo(n):
+    env = envs.make("ipd-v0", n_players=n, max_steps=6)
+    cfg = dataclasses.replace(learners.default_config("reciprocator", "ipd-v0"), num_envs=64)
+    state = reciprocator.init(jax.random.PRNGKey(4), env, cfg)
+    trajs = reciprocator.play_batch(env, cfg, state.policy, jax.random.PRNGKey(5), NO_ATTACK, 0, {})
+    returns = jax.random.normal(jax.random.PRNGKey(6), trajs.env_rewards.shape)
+    sign = jnp.ones((n,)).at[0].set(-1.0)
+    per_sample = reciprocator.ppo_update(
+        env, cfg, state.policy, state.value, state.opt, trajs, returns, sign
+    )
+    tabulated = tabular.ppo_update(
+        reciprocator._modules(env, cfg),
+        cfg,
+        env.obs_dim,
+        state.policy,
+        state.value,
+        state.opt,
+        exact_voi.state_codes(trajs.obs).reshape(-1),
+        jnp.moveaxis(trajs.actions, 2, 0).reshape(n, -1),
+        jnp.moveaxis(returns, 2, 0).reshape(n, -1),
+        trajs.valid.reshape(-1),
+        sign,
+    )
+    for a, b in zip(jax.tree.leaves(per_sample), jax.tree.leaves(tabulated), strict=True):
+        np.testing.assert_allclose(a, b, rtol=2e-4, atol=2e-6)
+
+
+def test_tabulated_play_follows_the_game():
+    env = envs.make("ipd-v0", n_players=3, max_steps=4)
+    cfg = dataclasses.replace(learners.default_config("reciprocator", "ipd-v0"), num_envs=16)
+    state = reciprocator.init(jax.random.PRNGKey(0), env, cfg)
+    trajs = reciprocator.play_batch(env, cfg, state.policy, jax.random.PRNGKey(1), NO_ATTACK, 0, {})
+    obs, env_state = env.reset(jax.random.PRNGKey(0))
+    for e in range(3):
+        o, s = obs, env_state
+        for t in range(env.max_steps):
+            np.testing.assert_array_equal(trajs.obs[e, t], o)
+            o, s, r, _, info = env.step(jax.random.PRNGKey(0), s, trajs.actions[e, t])
+            np.testing.assert_allclose(trajs.env_rewards[e, t], r)
+            assert bool(trajs.success[e, t]) == bool(info["success"])
+    # the sampled actions follow the policy: agent 0's first-step action frequency
+    logits = tabular.logits_table(reciprocator._modules(env, cfg)[0], state.policy, 7, 3)
+    p = jax.nn.softmax(logits[:, exact_voi.game_tables(env).first_code])
+    wide = dataclasses.replace(cfg, num_envs=20_000)
+    first = reciprocator.play_batch(
+        env, wide, state.policy, jax.random.PRNGKey(2), NO_ATTACK, 0, {}
+    )
+    np.testing.assert_allclose((first.actions[:, 0] == 0).mean(0), p[:, 0], atol=0.015)
+
+
+def test_voi_metrics_per_pair_and_role():
+    voi = jnp.zeros((1, 2, 3, 3)).at[0, 0, 1, 0].set(2.0).at[0, 1, 2, 1].set(4.0)
+    actions = jnp.array([[[2, 0, 1], [1, 1, 2]]])
+    metrics = reciprocator.voi_metrics(voi, actions, jnp.array([[True, True]]), 3)
+    assert metrics["train/voi/agent_1_to_agent_0"] == 1.0  # 2 on one of two steps
+    assert metrics["train/voi/agent_2_to_agent_1"] == 2.0
+    assert metrics["train/voi/agent_0_to_agent_1"] == 0.0
+    # (j plays 0, i plays 2): only step 0's 1 → 0, VoI 2. (j plays 2, i plays 1): step 0's
+    # 0 → 2 (VoI 0) and step 1's 2 → 0 (0) and 2 → 1 (4).
+    assert metrics["train/voi_role/action_0_to_action_2"] == 2.0
+    np.testing.assert_allclose(metrics["train/voi_role/action_2_to_action_1"], 4.0 / 3)
+    np.testing.assert_allclose(
+        sum(v for k, v in metrics.items() if k.startswith("train/voi_role_share/")), 1.0
+    )
+
+
+def test_the_default_matrix_agent_cooperates_on_the_ipd():
+    """The original's IPD agent (exact VoI, one-step grudge, width 2, w 5) learns mutual
+    cooperation, measured on 3 seeds (a smaller batch than the original's 2048 games)."""
+    env = envs.make("ipd-v0", max_steps=32)
+    cfg = dataclasses.replace(learners.default_config("reciprocator", "ipd-v0"), num_envs=COOP_ENVS)
+
+    def run(key):
+        state = reciprocator.init(key, env, cfg)
+        state, metrics = jax.lax.scan(
+            lambda s, _: reciprocator.update(s, env, cfg), state, None, length=COOP_ITERATIONS
+        )
+        return metrics["train/success"][-10:].mean(), metrics["train/action_0_rate"][-10:].mean()
+
+    mutual, cooperate = jax.jit(jax.vmap(run))(jax.vmap(jax.random.PRNGKey)(jnp.arange(3)))
+    assert np.all(np.asarray(cooperate) >= COOP_RATE), (mutual, cooperate)

@@ -37,6 +37,17 @@ _PG_IPD_COLUMN = {
     "epsilon_decay_iters": 5000,
 }
 _RECIPROCATOR_W1 = {"reciprocal_weight": 1.0}
+# The Reciprocator on matrix games: the original's IPD agent (exact VoI against the others'
+# action frequencies of the last batch, refreshed every 3 updates; one-step grudge; width-2
+# policy and value networks; 2048 parallel games per update). w stays 5 on the IPD.
+_RECIPROCATOR_MATRIX = {
+    "voi": "exact",
+    "grudge": "one_step",
+    "policy_hidden": (2, 2),
+    "num_envs": 2048,
+    "voi_refit_period": 3,
+    "voi_history": 1,
+}
 _OTHER_GAMES = {"lio": _LIO_IPD_COLUMN, "pg": _PG_IPD_COLUMN, "reciprocator": _RECIPROCATOR_W1}
 # Stag Hunt gridworld: the original config_staghunt_lio is LIO's Escape Room column (LIO's
 # base config); PG takes the same policy settings (PG's own base is its ER column).
@@ -52,7 +63,11 @@ register(
     "ipd-v0",
     IteratedPrisonersDilemma,
     "Iterated prisoner's dilemma, N players: the mean of the pairwise payoffs (LIO's for N=2).",
-    learner_defaults={"lio": _LIO_IPD_COLUMN, "pg": _PG_IPD_COLUMN},
+    learner_defaults={
+        "lio": _LIO_IPD_COLUMN,
+        "pg": _PG_IPD_COLUMN,
+        "reciprocator": _RECIPROCATOR_MATRIX,
+    },
 )
 register(
     "stag_hunt-v0",
@@ -64,7 +79,7 @@ register(
     "stag_hunt_matrix-v0",
     StagHuntMatrix,
     "Repeated N-player matrix Stag Hunt: stag pays 5 if all choose stag, else 0; hare pays 1.",
-    learner_defaults=_OTHER_GAMES,
+    learner_defaults=_OTHER_GAMES | {"reciprocator": _RECIPROCATOR_MATRIX | _RECIPROCATOR_W1},
 )
 
 __all__ = [

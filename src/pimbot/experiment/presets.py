@@ -184,14 +184,23 @@ def profile_jobs(scale: Scale) -> list[Job]:
     return [Job("profile/er21_paired", "profile", config, ("C8",))]
 
 
-GRUDGE = (("original_one_step_grudge", True),)
-"""Reciprocator runs use the original code's one-step grudge (docs/results/reciprocators.md)."""
+GRUDGE = (("grudge", "one_step"),)
+"""Gridworld Reciprocator runs use the original IPD agent's one-step grudge with the learned
+VoI (docs/results/reciprocators.md); on the IPD that agent is the default."""
+SPEC_BALANCE = (
+    ("voi", "learned"),
+    ("grudge", "accumulated"),
+    ("policy_hidden", (64, 64)),
+    ("voi_refit_period", 2),
+    ("voi_history", 3),
+)
+"""The spec's general agent on the IPD: learned VoI, accumulated balance, 64×64 networks."""
 
 
 def _reciprocator_settings() -> list[tuple[Setting, str, tuple[str, ...]]]:
     """(setting, learner, conditions) of C7 and the 2-player IPD fidelity runs."""
 
-    def ipd(label, n, learner="reciprocator", hparams=GRUDGE):
+    def ipd(label, n, learner="reciprocator", hparams=()):
         params = (("max_steps", 32), ("n_players", n))
         return Setting(label, "ipd-v0", params, 100, 5, (("num_envs", 32),) + hparams)
 
@@ -207,8 +216,8 @@ def _reciprocator_settings() -> list[tuple[Setting, str, tuple[str, ...]]]:
     disrupt = ("clean", "admo_disrupt")
     return [
         (ipd("rec_ipd2", 2), "reciprocator", ("clean", "self_centered", "admo_disrupt")),
-        (ipd("nl_ipd2", 2, hparams=()), "nl", ("clean",)),
-        (ipd("rec_ipd2_spec", 2, hparams=()), "reciprocator", ("clean",)),
+        (ipd("nl_ipd2", 2), "nl", ("clean",)),
+        (ipd("rec_ipd2_spec", 2, hparams=SPEC_BALANCE), "reciprocator", ("clean",)),
         (ipd("rec_ipd3", 3), "reciprocator", disrupt),
         (ipd("rec_ipd4", 4), "reciprocator", disrupt),
         (room("rec_er21", 2, 1), "reciprocator", disrupt),

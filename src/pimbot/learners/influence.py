@@ -144,15 +144,20 @@ def value_of_influence(
     return voi * (1.0 - jnp.eye(num_agents, dtype=voi.dtype))
 
 
+GRUDGES = ("accumulated", "one_step")
+"""Balance variants: the general agent's accumulated credit − debit, or the original IPD
+agent's one-step grudge."""
+
+
 def balance_and_reciprocal_reward(
-    voi: jax.Array, gamma: float, one_step_grudge: bool = False
+    voi: jax.Array, gamma: float, grudge: str = "accumulated"
 ) -> tuple[jax.Array, jax.Array]:
     """The influence balance per pair and the reciprocal reward, along one episode.
 
-    B_t[i, j] = γ B_{t−1}[i, j] + VoI(j→i, t) − VoI(i→j, t), B_{−1} = 0;
+    grudge "accumulated": B_t[i, j] = γ B_{t−1}[i, j] + VoI(j→i, t) − VoI(i→j, t), B_{−1} = 0;
+    grudge "one_step" (the original code's IPD agent): B_t[i, j] = VoI(j→i, t), no
+    accumulation and no debit for the influence i exerted;
     reciprocal_t[i] = mean_{j≠i} B_{t−1}[i, j] · VoI(i→j, t).
-    With `one_step_grudge` (the original code's IPD agent): B_t[i, j] = VoI(j→i, t),
-    no accumulation and no debit for the influence i exerted.
 
     Args:
         voi: [T, N influencer, N influenced], zero on invalid steps and on the diagonal.
@@ -163,7 +168,7 @@ def balance_and_reciprocal_reward(
 
     def body(balance, voi_t):
         reward = jnp.sum(balance * voi_t, axis=1) / (num_agents - 1)
-        balance = voi_t.T if one_step_grudge else gamma * balance + voi_t.T - voi_t
+        balance = voi_t.T if grudge == "one_step" else gamma * balance + voi_t.T - voi_t
         return balance, (balance, reward)
 
     start = jnp.zeros((num_agents, num_agents), voi.dtype)

@@ -3,13 +3,20 @@
 One iteration, per seed and for all agents at once (spec/reciprocators.md):
   1. play `num_envs` parallel episodes with the current softmax policies;
   2. store them, and every `voi_refit_period` iterations refit the value-of-
-     influence models on the last `voi_history` batches (`influence.py`);
-  3. VoI of every ordered pair on every step, the influence balance per pair,
+     influence estimate on the last `voi_history` batches: learned models
+     (`voi="learned"`, `influence.py`) or, on matrix games, the others' action
+     frequencies per state for the exact VoI (`voi="exact"`, `exact_voi.py`);
+  3. VoI of every ordered pair on every step, the influence balance per pair
+     (`grudge="accumulated"`: γ-discounted credit − debit; `"one_step"`: the
+     other's influence on the previous step only, the original's IPD agent),
      and each agent's reciprocal reward mean_j B_{t−1}·VoI(self→j, t);
   4. PPO (clip, entropy bonus, `ppo_epochs` full-batch Adam epochs) on the
      Monte-Carlo return of env + w·reciprocal reward, normalized per batch per
      agent; advantage = normalized return − V̂(o).
 No reward moves between agents: a Reciprocator shapes others only by acting.
+Matrix games declare the original's IPD agent as their default (exact VoI,
+one-step grudge, width-2 networks, 2048 games, refit every 3 on the last batch);
+gridworlds use the learned VoI with the accumulated balance.
 
 Attacks act through the adversary's actions (bypass), its learning reward
 (self-centered: it learns from env reward only, i.e. it is a naive learner),
@@ -41,16 +48,17 @@ from pimbot.contracts.attack import (
 )
 from pimbot.contracts.defense import NO_DEFENSE, Defenses
 from pimbot.contracts.learner import Actor
-from pimbot.envs.core import Env
-from pimbot.learners import influence
+from pimbot.envs.core import Env, InvalidParameter
+from pimbot.learners import exact_voi, influence, tabular
 from pimbot.learners.pg import act_fn, evaluate_actor
 from pimbot.rollout import Trajectory, discounted_returns, episode_metrics, rollout
 
 
 @dataclasses.dataclass(frozen=True)
 class ReciprocatorConfig:
-    """Reciprocator hyperparameters (defaults: the original IPD config, except `num_envs`;
-    other environments declare w = 1 at their registration)."""
+    """Reciprocator hyperparameters. The base is the general (learned-VoI) agent with the
+    original IPD's PPO settings; matrix games declare the original's IPD agent at their
+    registration, other environments w = 1."""
 
     reciprocal_weight: float = 5.0
     """w: weight of the reciprocal reward added to the env reward (0 = naive learner)."""
@@ -82,9 +90,28 @@ class ReciprocatorConfig:
     """Adam steps per refit."""
     voi_batch: int = 512
     """Samples per Adam step of the refit (drawn from the stored batches)."""
-    original_one_step_grudge: bool = False
-    """Reproduce the original code's IPD agent: the "balance" is only the other's influence
-    on the previous step, VoI(j→self, t−1), without accumulation or debit (spec: off)."""
+    voi: str = "learned"
+    """How the value of influence is computed: "learned" (reward and future-value models
+    against counterfactual models, any env) or "exact" (matrix games: the known payoffs
+    against the others' empirical action frequencies per state; reward term only)."""
+    grudge: str = "accumulated"
+    """The balance B_{t−1} that scales the reciprocal reward: "accumulated" (γ B + VoI(j→self)
+    − VoI(self→j), the general agent) or "one_step" (VoI(j→self, t−1) only: no accumulation,
+    no debit, the original's IPD agent)."""
+
+
+VOI_KINDS = ("learned", "exact")
+GRUDGES = influence.GRUDGES
+
+
+def check_config(env: Env, cfg: ReciprocatorConfig) -> None:
+    """Refuses unknown `voi` / `grudge` values and exact VoI outside matrix games."""
+    if cfg.voi not in VOI_KINDS:
+        raise InvalidParameter(f"voi: must be one of {', '.join(VOI_KINDS)}, got {cfg.voi!r}")
+    if cfg.grudge not in GRUDGES:
+        raise InvalidParameter(f"grudge: must be one of {', '.join(GRUDGES)}, got {cfg.grudge!r}")
+    if cfg.voi == "exact":
+        exact_voi.check_env(env)
 
 
 @struct.dataclass
@@ -102,8 +129,8 @@ class ReciprocatorState:
     policy: dict  # stacked policy parameters, leaves [N, ...]
     value: dict  # stacked value parameters, leaves [N, ...]
     opt: optax.OptState  # Adam state over (policy, value)
-    models: influence.InfluenceModels
-    replay: ReplayBatches
+    models: influence.InfluenceModels | exact_voi.ActionFrequencies  # by `voi`
+    replay: ReplayBatches | None  # learned VoI: the stored batches; exact: None
     attack_state: Any  # the attack's own state (ADMO's), else an empty dict
     defense_state: tuple  # no defense hook point: always empty
     key: jax.Array
@@ -129,20 +156,24 @@ def init(
     attack: Attack = NO_ATTACK,
     defenses: Defenses = NO_DEFENSE,
 ) -> ReciprocatorState:
+    check_config(env, cfg)
     policy_module, value_module = _modules(env, cfg)
     policy_key, value_key, model_key, key = jax.random.split(key, 4)
     n = env.num_agents
     policy = nets.init_stacked(policy_module, policy_key, n, env.obs_dim)
     value = nets.init_stacked(value_module, value_key, n, env.obs_dim)
-    in_dim = n * (env.obs_dim + env.num_actions)
-    samples = cfg.num_envs * env.max_steps
-    shape = (cfg.voi_history, samples)
-    replay = ReplayBatches(
-        x=jnp.zeros(shape + (in_dim,), jnp.float32),
-        rewards=jnp.zeros(shape + (n,), jnp.float32),
-        future=jnp.zeros(shape + (n,), jnp.float32),
-        valid=jnp.zeros(shape, bool),
-    )
+    if cfg.voi == "exact":
+        models, replay = exact_voi.init_frequencies(env, cfg.voi_history), None
+    else:
+        in_dim = n * (env.obs_dim + env.num_actions)
+        shape = (cfg.voi_history, cfg.num_envs * env.max_steps)
+        models = influence.init_models(model_key, cfg.voi_hidden, n, in_dim, cfg.voi_lr)
+        replay = ReplayBatches(
+            x=jnp.zeros(shape + (in_dim,), jnp.float32),
+            rewards=jnp.zeros(shape + (n,), jnp.float32),
+            future=jnp.zeros(shape + (n,), jnp.float32),
+            valid=jnp.zeros(shape, bool),
+        )
     own = agent_row(policy, attack.adversary)
     attack_state = attack.init_state(attack_key(key), n, AgentParams(own, {}))
     del defenses  # the Reciprocator has no defense hook point
@@ -151,7 +182,7 @@ def init(
         policy=policy,
         value=value,
         opt=optax.adam(cfg.lr).init((policy, value)),
-        models=influence.init_models(model_key, cfg.voi_hidden, n, in_dim, cfg.voi_lr),
+        models=models,
         replay=replay,
         attack_state=attack_state,
         defense_state=(),
@@ -237,10 +268,40 @@ def ppo_update(env, cfg, policy, value, opt, trajs: Trajectory, returns, sign):
 
 
 def play_batch(env, cfg, policy, key, attack, env_steps, attack_state) -> Trajectory:
-    """`num_envs` episodes with the current policies (no ε): leaves [E, T, ...]."""
-    act = act_fn(_modules(env, cfg)[0], policy, jnp.float32(0.0))
+    """`num_envs` episodes with the current policies (no ε): leaves [E, T, ...].
+
+    With `voi="exact"` (a matrix game) the policies are tabulated per state first, and
+    without an attack that acts the batch is played by `tabular.play`."""
+    if cfg.voi == "exact":
+        logits = tabular.logits_table(_modules(env, cfg)[0], policy, env.obs_dim, env.num_agents)
+        trajs = None if "act" in attack.hooks else tabular.play(env, logits, key, cfg.num_envs)
+        if trajs is not None:
+            return trajs
+        act = tabular.act_from_table(logits)
+    else:
+        act = act_fn(_modules(env, cfg)[0], policy, jnp.float32(0.0))
     keys = jax.random.split(key, cfg.num_envs)
     return jax.vmap(lambda k: rollout(env, k, act, None, attack, env_steps, attack_state))(keys)
+
+
+@jax.custom_batching.custom_vmap
+def _same_in_every_seed(x: jax.Array) -> jax.Array:
+    """`x`, unbatched under vmap (its first element): for a per-seed value that all seeds
+    of a batch share, such as the iteration count (seeds start together and step
+    together). It lets a `lax.cond` on it skip the untaken branch for every seed at
+    once instead of computing both and selecting."""
+    return x
+
+
+@_same_in_every_seed.def_vmap
+def _same_in_every_seed_vmap(axis_size, in_batched, x):
+    del axis_size
+    return (x[0] if in_batched[0] else x), False
+
+
+def refit_due(cfg: ReciprocatorConfig, iteration: jax.Array) -> jax.Array:
+    """Whether this iteration refits the VoI estimate (every `voi_refit_period`, from 0)."""
+    return _same_in_every_seed(iteration % cfg.voi_refit_period == 0)
 
 
 def refit_models(env, cfg, state: ReciprocatorState, key, x, trajs: Trajectory):
@@ -270,10 +331,72 @@ def refit_models(env, cfg, state: ReciprocatorState, key, x, trajs: Trajectory):
             batch_size=cfg.voi_batch,
         )
 
-    due = state.iteration % cfg.voi_refit_period == 0
+    due = refit_due(cfg, state.iteration)
     models, loss = jax.lax.cond(due, refit, lambda m: (m, jnp.zeros((), jnp.float32)), state.models)
     # × period: the mean over an evaluation period (a multiple of it) is the mean refit loss.
     return models, replay, loss * cfg.voi_refit_period
+
+
+def influence_step(env, cfg, state: ReciprocatorState, key, trajs: Trajectory):
+    """Refits the VoI estimate when due and returns it with every step's VoI.
+
+    Returns:
+        (models, replay, voi [E, T, N influencer, N influenced] zero on invalid steps,
+        extra metrics).
+    """
+    if cfg.voi == "exact":
+        codes = exact_voi.state_codes(trajs.obs)  # [E, T]
+        models = exact_voi.store_and_refit(
+            state.models,
+            codes.reshape(-1),
+            trajs.actions.reshape(-1, env.num_agents),
+            trajs.valid.reshape(-1),
+            state.iteration % cfg.voi_history,
+            refit_due(cfg, state.iteration),
+        )
+        rewards = exact_voi.game_tables(env).rewards
+        voi = exact_voi.value_of_influence(models.probs, rewards, codes, trajs.actions)
+        return models, None, voi * trajs.valid[..., None, None], {}
+    x = influence.model_inputs(trajs.obs, trajs.actions, env.num_actions)  # [E, T, in_dim]
+    models, replay, model_loss = refit_models(env, cfg, state, key, x, trajs)
+    voi = influence.value_of_influence(models.params, cfg.voi_hidden, _masks(env), x, cfg.gamma)
+    return models, replay, voi * trajs.valid[..., None, None], {"train/model_loss": model_loss}
+
+
+def voi_metrics(voi: jax.Array, actions: jax.Array, valid: jax.Array, num_actions: int) -> dict:
+    """Mean VoI per ordered pair and by role, over the valid steps of the batch.
+
+    `train/voi/agent_j_to_agent_i`: mean VoI(j → i) per step. The role of an agent on a
+    step is the action it took (Escape Room: 0 lever, 1 start, 2 door; IPD: 0 cooperate,
+    1 defect): `train/voi_role/action_x_to_action_y` is the mean VoI(j → i) over the
+    ordered pairs and steps where j played x and i played y (0 where there were none),
+    `train/voi_role_share/...` the share of pair-steps with those roles.
+
+    Args:
+        voi: [E, T, N, N] zero on invalid steps; actions: int [E, T, N]; valid: bool [E, T].
+    """
+    n = voi.shape[-1]
+    mask = valid.astype(jnp.float32)
+    steps = jnp.maximum(mask.sum(), 1.0)
+    pair = voi.sum(axis=(0, 1)) / steps  # [N j, N i]
+    off = 1.0 - jnp.eye(n, dtype=voi.dtype)
+    one_hot = jax.nn.one_hot(actions, num_actions, dtype=jnp.float32) * mask[..., None, None]
+    # weight[x, y, j, i]: pair-steps with j playing x and i playing y
+    weight = jnp.einsum("etjx,etiy->xyji", one_hot, one_hot) * off
+    total = jnp.einsum("etjx,etiy,etji->xy", one_hot, one_hot, voi)
+    count = weight.sum(axis=(-2, -1))
+    role = total / jnp.maximum(count, 1.0)
+    share = count / jnp.maximum(count.sum(), 1.0)
+    out = {}
+    for j in range(n):
+        for i in range(n):
+            if i != j:
+                out[f"train/voi/agent_{j}_to_agent_{i}"] = pair[j, i]
+    for x in range(num_actions):
+        for y in range(num_actions):
+            out[f"train/voi_role/action_{x}_to_action_{y}"] = role[x, y]
+            out[f"train/voi_role_share/action_{x}_to_action_{y}"] = share[x, y]
+    return out
 
 
 def update(
@@ -283,24 +406,19 @@ def update(
     attack: Attack = NO_ATTACK,
     defenses: Defenses = NO_DEFENSE,
 ) -> tuple[ReciprocatorState, dict[str, jax.Array]]:
-    """One training iteration: a batch of parallel episodes, a model refit, one PPO update."""
+    """One training iteration: a batch of parallel episodes, a VoI refit when due, one PPO
+    update."""
     del defenses
     key, play_key, fit_key = jax.random.split(state.key, 3)
     # 1. play the batch (attack hook: act)
     trajs = play_batch(
         env, cfg, state.policy, play_key, attack, state.env_steps, state.attack_state
     )
-    # 2. store it and refit the VoI models when due
-    x = influence.model_inputs(trajs.obs, trajs.actions, env.num_actions)  # [E, T, in_dim]
-    models, replay, model_loss = refit_models(env, cfg, state, fit_key, x, trajs)
-
-    # 3. VoI of every ordered pair, the balance and the reciprocal reward
-    voi = influence.value_of_influence(models.params, cfg.voi_hidden, _masks(env), x, cfg.gamma)
-    voi = voi * trajs.valid[..., None, None]  # [E, T, N, N]
+    # 2.–3. store it, refit the VoI estimate when due, VoI of every ordered pair on every step
+    models, replay, voi, fit_metrics = influence_step(env, cfg, state, fit_key, trajs)
+    # the balance and the reciprocal reward
     _, reciprocal = jax.vmap(
-        lambda v: influence.balance_and_reciprocal_reward(
-            v, cfg.gamma, cfg.original_one_step_grudge
-        )
+        lambda v: influence.balance_and_reciprocal_reward(v, cfg.gamma, cfg.grudge)
     )(voi)
     # 4. PPO on env + w · reciprocal reward (attack hooks: learning_rewards, policy_sign)
     rewards = attack.learning_rewards(
@@ -308,9 +426,25 @@ def update(
     )
     returns = normalized_returns(rewards, trajs.valid, cfg.gamma)
     sign = attack.policy_sign(state.attack_state, env.num_agents)
-    policy, value, opt = ppo_update(
-        env, cfg, state.policy, state.value, state.opt, trajs, returns, sign
-    )
+    if cfg.voi == "exact":  # a matrix game: the same PPO loss, summed per state
+        n = env.num_agents
+        policy, value, opt = tabular.ppo_update(
+            _modules(env, cfg),
+            cfg,
+            env.obs_dim,
+            state.policy,
+            state.value,
+            state.opt,
+            exact_voi.state_codes(trajs.obs).reshape(-1),
+            jnp.moveaxis(trajs.actions, 2, 0).reshape(n, -1),
+            jnp.moveaxis(returns, 2, 0).reshape(n, -1),
+            trajs.valid.reshape(-1),
+            sign,
+        )
+    else:
+        policy, value, opt = ppo_update(
+            env, cfg, state.policy, state.value, state.opt, trajs, returns, sign
+        )
 
     per_episode = jax.vmap(lambda t: episode_metrics(env, t))(trajs)
     success = per_episode["success"].mean()
@@ -321,7 +455,11 @@ def update(
         "train/reciprocal_reward": jnp.sum(reciprocal * valid[..., None], axis=(0, 1)) / count,
         "train/voi_given": jnp.sum(voi.sum(-1) * valid[..., None], axis=(0, 1)) / count,
         "train/voi_received": jnp.sum(voi.sum(-2) * valid[..., None], axis=(0, 1)) / count,
-        "train/model_loss": model_loss,
+        # per agent, the share of its valid steps on which it played action 0 (IPD: cooperate)
+        "train/action_0_rate": jnp.sum((trajs.actions == 0) * valid[..., None], axis=(0, 1))
+        / count,
+        **fit_metrics,
+        **voi_metrics(voi, trajs.actions, trajs.valid, env.num_actions),
     }
     # 5. a learning attack replaces the adversary's update (attack hook: adversary_step)
     attack_state = state.attack_state

@@ -33,8 +33,25 @@ C7_TEXT = (
 
 
 def variant(run: RunRecord) -> str:
-    """Hyperparameters that change the mechanism: "grudge" (the original one-step grudge)."""
-    return "grudge" if run.identity["learner_config"].get("original_one_step_grudge") else ""
+    """The balance, where it is not the one-step grudge of the C7 runs: "spec balance" (the
+    accumulated credit − debit). Runs stored before the option was named `grudge` carry
+    `original_one_step_grudge` instead."""
+    if run.learner != LEARNER:
+        return ""  # NL: weight 0, no balance
+    config = run.identity["learner_config"]
+    legacy = "one_step" if config.get("original_one_step_grudge") else "accumulated"
+    return "" if config.get("grudge", legacy) == "one_step" else "spec balance"
+
+
+def voi_kind(run: RunRecord) -> str:
+    """ "exact" (matrix games: the original IPD agent) or "learned" VoI."""
+    return run.identity["learner_config"].get("voi", "learned")
+
+
+VOI_ROLES = {  # column label -> metric; ER actions: 0 lever, 1 start, 2 door
+    "lever → door": "train/voi_role/action_0_to_action_2",
+    "door → lever": "train/voi_role/action_2_to_action_0",
+}
 
 
 def learner_label(run: RunRecord) -> str:
@@ -52,13 +69,15 @@ def section(table: RunTable, ctx: Context) -> Section | None:
     out = Section(
         "Reciprocators: baseline vs ADMO (C7) and IPD fidelity",
         text=[
-            "Reciprocator runs use the original code's one-step grudge; NL = the same PPO "
-            "with reciprocal weight 0 (also the self-centered adversary). Details and the "
-            "reasons for the iteration budgets: docs/results/reciprocators.md."
+            "Reciprocator runs use the original code's one-step grudge: on the IPD the "
+            "original's matrix agent (exact VoI, width-2 networks), on gridworlds the learned "
+            "VoI; NL = the same PPO with reciprocal weight 0 (also the self-centered "
+            "adversary). Details and the reasons for the iteration budgets: "
+            "docs/results/reciprocators.md."
         ],
     )
     grudge = sorted(
-        (r for r in runs if r.learner == LEARNER and variant(r) == "grudge"),
+        (r for r in runs if r.learner == LEARNER and not variant(r)),
         key=lambda r: condition_key(r.condition),
     )
     panels = [
@@ -80,8 +99,8 @@ def section(table: RunTable, ctx: Context) -> Section | None:
     by = {(r["env"], r["learner"], r["condition"]): r for r in rows}
     parts, ok, clean_ok, admo_ok, targets = [], True, 0, 0, 0
     for env in [e for e in C7_ENVS if e in envs]:
-        clean = by.get((env, f"{LEARNER} (grudge)", CLEAN))
-        admo = by.get((env, f"{LEARNER} (grudge)", ATTACKED))
+        clean = by.get((env, LEARNER, CLEAN))
+        admo = by.get((env, LEARNER, ATTACKED))
         if clean is None or admo is None:
             ok = False
             parts.append(f"{env}: not run")
@@ -108,7 +127,37 @@ def section(table: RunTable, ctx: Context) -> Section | None:
         )
     )
     out.tables.append(results_table(rows))
+    voi = voi_table(runs)
+    if voi is not None:
+        out.tables.append(voi)
     return out
+
+
+def voi_table(runs: list[RunRecord]) -> Table | None:
+    """Final VoI by role per Reciprocator run: ER's lever pullers and door agents (the
+    action taken on the step), and the adversary against the others when attacked."""
+    rows = []
+    for run in sorted(runs, key=lambda r: (natural_key(r.env), condition_key(r.condition))):
+        if run.learner != LEARNER:
+            continue
+        n, a = run.num_agents, run.adversary
+        others = [j for j in range(n) if j != a]
+        given = [run.per_seed(f"train/voi/agent_{a}_to_agent_{j}") for j in others]
+        received = [run.per_seed(f"train/voi/agent_{j}_to_agent_{a}") for j in others]
+        if any(v.size == 0 for v in given + received):
+            continue  # a run stored before the pair metrics were logged
+        row = [run.env, learner_label(run), run.condition, voi_kind(run)]
+        row += [estimate(sum(given) / len(given)), estimate(sum(received) / len(received))]
+        for metric in VOI_ROLES.values():
+            values = run.per_seed(metric)
+            row.append(estimate(values) if values.size and run.env.startswith("ER") else None)
+        rows.append(row + [run.setting])
+    if not rows:
+        return None
+    header = ["env", "learner", "condition", "VoI"]
+    header += ["adversary (clean: agent 0) → others", "others → adversary"]
+    header += [f"{label} (ER)" for label in VOI_ROLES] + ["run"]
+    return Table(header, rows, name="reciprocator_voi")
 
 
 def results_rows(runs: list[RunRecord]) -> list[dict]:
@@ -182,8 +231,6 @@ def fig_fidelity(runs: list[RunRecord], path) -> bool:
             mean = ((values / steps + 3.0) / 3.0).mean(axis=0)
             ax.plot(iterations, mean, color=color, lw=1, ls="--", label=f"agent {agent} return")
         title = label + (f" [{variant(run)}]" if variant(run) else "")
-        if run.learner == LEARNER and not variant(run):
-            title += " [spec balance]"
         ax.set_title(title)
         ax.set_ylim(-0.05, 1.05)
         ax.set_xlabel("iteration")
