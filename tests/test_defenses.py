@@ -325,18 +325,21 @@ def test_train_defense_errors_are_one_line_exit_2_nothing_written(tmp_path, caps
     assert not out.exists()
 
 
-def test_train_with_defenses_and_audit_log_then_verify(tmp_path, capsys):
-    log = tmp_path / "audit.jsonl"
+def test_train_with_defenses_and_audit_log_then_verify(tmp_path, capsys, monkeypatch):
+    log, key = tmp_path / "audit.jsonl", tmp_path / "keys" / "audit.key"
     argv = [
         "train", "ipd-v0", "--seeds", "2", "--iterations", "40", "--eval-period", "20",
         "--chunk-iterations", "20", "--quiet", "--out", str(tmp_path / "run"),
         "--defense", "incentive_guard", "--defense", "health_monitor",
-        "--dp", "health_monitor.patience=5", "--audit-log", str(log),
+        "--dp", "health_monitor.patience=5", "--audit-log", str(log), "--audit-key", str(key),
     ]  # fmt: skip
     assert cli.main(argv) == 0
     out = capsys.readouterr().out
     assert "audit log" in out and "head" in out
-    assert cli.main(["audit", "verify", str(log)]) == 0
+    assert key.stat().st_mode & 0o777 == 0o600  # created on first use
+    assert cli.main(["audit", "verify", str(log), "--audit-key", str(key)]) == 0
+    monkeypatch.setenv("PIMBOT_AUDIT_KEY_FILE", str(tmp_path / "other.key"))
+    assert cli.main(["audit", "verify", str(log)]) == 2  # no such key: one line, exit 2
     lines = log.read_text().splitlines()
     assert len(lines) == 3  # the run record and one per chunk
     assert "policy_sha256" in lines[1] and "defense/monitor_alarms" in lines[1]

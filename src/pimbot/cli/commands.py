@@ -129,7 +129,9 @@ def build(choices: Choices) -> dict:
         defense_param: _pairs_option("[DEFENSE.]NAME=VALUE", aliases=("--dp",)) = ()
         """Defense parameter (repeatable), e.g. --dp health_monitor.patience=20."""
         audit_log: Annotated[str | None, tyro.conf.arg(metavar="PATH")] = None
-        """Append a hash-chained audit log of the run to this file."""
+        """Append a keyed (HMAC-SHA256) audit log of the run to this file."""
+        audit_key: Annotated[str | None, tyro.conf.arg(metavar="FILE")] = None
+        """Audit log key file, not in the log's directory (made 0600 if missing); None: default."""
         out: Annotated[str | None, tyro.conf.arg(metavar="DIR")] = None
         """Run directory (created; rerun to resume). Required unless --from is given."""
         from_run: Annotated[str | None, tyro.conf.arg(name="from", metavar="RUN_DIR")] = None
@@ -271,12 +273,14 @@ def build(choices: Choices) -> dict:
 
     @dataclasses.dataclass(frozen=True, kw_only=True)
     class AuditVerify(Command):
-        """Verify a hash-chained audit log; names the first bad record."""
+        """Verify a keyed audit log and its signed head; names the first bad record."""
 
         log: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="LOG")]
         """The JSONL audit log."""
         head: str | None = None
-        """Expected hash of the last record."""
+        """A head MAC printed when the log was written; the log must contain it."""
+        audit_key: Annotated[str | None, tyro.conf.arg(metavar="FILE")] = None
+        """The log's key file; None: $PIMBOT_AUDIT_KEY_FILE, else ~/.config/pimbot/audit.key."""
 
     @dataclasses.dataclass(frozen=True, kw_only=True)
     class RobotRun(Command):

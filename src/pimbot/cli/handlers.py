@@ -69,7 +69,7 @@ def cmd_train(args) -> int:
         defenses=defense_cli.run_defenses(args),
     )
     runner.check_run_dir(Path(args.out), resolve(run))  # nothing written on a bad command
-    on_chunk = defense_cli.chunk_logger(args.audit_log, run)
+    on_chunk = defense_cli.chunk_logger(args.audit_log, run, args.audit_key)
     result = runner.train(
         run,
         args.out,

@@ -9,8 +9,10 @@ from typing import Any
 DEPLOYMENT = {
     "authenticated_channel": "HMAC-SHA256 incentive messages with per-pair keys, sequence "
     "numbers, replay window and step order (pimbot.defenses.channel)",
-    "audit_log": "hash-chained JSONL log; `pimbot audit verify LOG` (pimbot.defenses.audit); "
-    "`pimbot train --audit-log PATH` writes one",
+    "audit_log": "HMAC-SHA256-keyed JSONL log with a signed head, key kept outside the log "
+    "(--audit-key FILE, $PIMBOT_AUDIT_KEY_FILE, ~/.config/pimbot/audit.key); "
+    "`pimbot train --audit-log PATH` writes one, `pimbot audit verify LOG` checks it "
+    "(pimbot.defenses.audit)",
 }
 
 
@@ -24,23 +26,35 @@ def run_defenses(args) -> tuple[tuple[str, Any], ...]:
     return parse_defenses(list(args.defense), list(args.defense_param))
 
 
-def chunk_logger(path: str | Path | None, run_config):
-    """A runner `on_chunk(done, states, rows)` callback writing the audit log, or None."""
+def chunk_logger(path: str | Path | None, run_config, key_file: str | Path | None = None):
+    """A runner `on_chunk(done, states, rows)` callback writing the audit log, or None.
+
+    The key comes from `key_file`, else the default (`audit.default_key_path`), and is
+    created there on first use. InvalidParameter (one line) on any problem with either.
+    """
     if path is None:
+        if key_file is not None:
+            from pimbot.envs.core import InvalidParameter
+
+            raise InvalidParameter("audit_key: given without --audit-log PATH")
         return None
     import dataclasses
 
     import flax.serialization
     import jax
 
-    from pimbot.defenses.audit import AuditLog, digest_bytes
+    from pimbot.defenses.audit import AuditError, AuditLog, digest_bytes, writer_key
     from pimbot.envs.core import InvalidParameter
 
+    path = Path(path)
+    if path.is_dir():
+        raise InvalidParameter(f"audit_log: {path} is a directory, not a file")
     try:
-        log = AuditLog(path)  # continues an existing log only if it verifies
-    except ValueError as error:
+        key, _ = writer_key(path, key_file)
+        log = AuditLog(path, key)  # continues an existing log only if it verifies
+        log.append("run", config=_jsonable(dataclasses.asdict(run_config)))
+    except AuditError as error:
         raise InvalidParameter(str(error)) from None
-    log.append("run", config=_jsonable(dataclasses.asdict(run_config)))
 
     def on_chunk(done: int, states, rows: list[dict]) -> None:
         host = jax.device_get(states)
@@ -110,13 +124,22 @@ def cmd_defenses() -> int:
 
 
 def cmd_audit(args) -> int:
-    from pimbot.defenses.audit import verify
+    """`pimbot audit verify LOG`: exit 0 ok, 1 a bad record or head (named), 2 unusable input."""
+    from pimbot.defenses.audit import AuditError, default_key_path, load_key, verify
+    from pimbot.envs.core import InvalidParameter
 
     path = Path(args.log)
+    if not path.exists():
+        raise InvalidParameter(f"log: {path}: no such file")
     if not path.is_file():
-        from pimbot.envs.core import InvalidParameter
-
         raise InvalidParameter(f"log: {path} is not a file")
-    result = verify(path, head=args.head)
+    head = args.head
+    if head is not None and (len(head) != 64 or any(c not in "0123456789abcdef" for c in head)):
+        raise InvalidParameter("head: must be 64 lowercase hex digits (a record MAC)")
+    try:
+        key = load_key(args.audit_key if args.audit_key is not None else default_key_path())
+        result = verify(path, key, head=head)
+    except AuditError as error:
+        raise InvalidParameter(str(error)) from None
     print(f"{path}: {result.message}")
     return 0 if result.ok else 1
