@@ -427,6 +427,33 @@ def test_stag_hunt_episode_success_is_clipped_stag_rate():
     assert score(jnp.array([0.0, 0.0])) == 0.0
 
 
+# The original config_staghunt_lio (PIMbot code): LIO's Escape Room column.
+STAG_HUNT_LIO_CONFIG = {
+    "policy_hidden": (64, 32),
+    "incentive_hidden": (64, 16),
+    "lr_policy": 1e-4,
+    "lr_incentive": 1e-3,
+    "lr_cost": 1e-4,
+    "incentive_max": 2.0,
+    "entropy_coef": 0.01,
+    "gamma": 0.99,
+    "epsilon_start": 0.5,
+    "epsilon_end": 0.1,
+    "epsilon_decay_iters": 1000,
+}
+
+
+@pytest.mark.parametrize("learner", ["lio", "pg"])
+def test_stag_hunt_learners_default_to_the_original_stag_hunt_config(learner):
+    from pimbot.experiment.config import RunConfig, resolve
+
+    resolved = resolve(RunConfig(env_id="stag_hunt-v0", learner=learner))
+    config = dataclasses.asdict(resolved.learner_config)
+    expected = {k: v for k, v in STAG_HUNT_LIO_CONFIG.items() if k in config}
+    assert {k: config[k] for k in expected} == expected
+    assert learner == "pg" or len(expected) == len(STAG_HUNT_LIO_CONFIG)
+
+
 # --- per-step metrics declared by the envs -----------------------------------------------
 
 
