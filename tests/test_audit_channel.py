@@ -450,6 +450,30 @@ def test_records_after_the_signed_head_verify_with_a_note(tmp_path):
     assert result.ok and result.records == 3 and "1 records after the signed head" in result.note
 
 
+def test_a_writer_killed_mid_record_is_recovered_on_reopening(tmp_path):
+    path = tmp_path / "audit.jsonl"
+    _write_log(path, 2)
+    whole, head = path.read_bytes(), audit.head_path(path).read_bytes()
+    log = audit.AuditLog(path, KEY)
+    log.append("update", iteration=200)
+    log.close()
+    partial = path.read_bytes()[: len(whole) + 40]  # killed 40 bytes into record 2
+    path.write_bytes(partial)
+    audit.head_path(path).write_bytes(head)  # the head is written after a whole record
+    assert audit.verify(path, KEY).first_bad == 3  # a reader sees it
+    reopened = audit.AuditLog(path, KEY)
+    reopened.close()
+    result = audit.verify(path, KEY)
+    assert result.ok and result.records == 3
+    assert json.loads(_lines(path)[2])["data"] == {
+        "dropped_bytes": 40,
+        "reason": "a partial last line",
+    }
+    path.write_bytes(partial.replace(b"update", b"UPDATE", 1))  # not only a partial line
+    with pytest.raises(audit.AuditError, match="line 1 is bad"):
+        audit.AuditLog(path, KEY)
+
+
 def test_a_second_writer_is_refused(tmp_path):
     path = tmp_path / "audit.jsonl"
     first = audit.AuditLog(path, KEY)

@@ -21,6 +21,8 @@ its head together leaves nothing to verify; anyone holding the key can rewrite e
 Logs of the old unkeyed format (a plain SHA-256 `hash` per record) are refused as not
 tamper-evident: anyone can recompute such a chain. Records beyond the signed head (the
 writer stopped between a record and its head) verify, with a note: they carry valid MACs.
+A writer continuing a log drops a partial last line (a writer killed mid-write) when
+everything before it verifies, and says so in a MACed "recovered" record.
 """
 
 from __future__ import annotations
@@ -171,11 +173,32 @@ class AuditLog:
         if fresh:
             self.count, self.last_hash = 0, secrets.token_hex(32)  # the log id
         else:
-            result = verify(self.path, key)
+            result, dropped = self._verify_for_writing()
             if not result.ok:
                 self.close()
                 raise AuditError(f"audit log {self.path} fails verification: {result.message}")
             self.count, self.last_hash = result.records, result.head
+            if dropped:
+                self.append("recovered", dropped_bytes=dropped, reason="a partial last line")
+
+    def _verify_for_writing(self) -> tuple[VerifyResult, int]:
+        """The log's verification, after dropping a partial last line (what a writer killed
+        mid-write leaves) if everything before it verifies; and the bytes dropped."""
+        result = verify(self.path, self.key)
+        if result.ok:
+            return result, 0
+        data = self.path.read_bytes()
+        cut = data.rfind(b"\n") + 1
+        if data.endswith(b"\n") or result.first_bad != data.count(b"\n") + 1:
+            return result, 0
+        shorter = verify(self.path, self.key, data=data[:cut])
+        if not shorter.ok:
+            return result, 0
+        try:
+            os.truncate(self.path, cut)
+        except OSError as error:
+            raise AuditError(f"audit log {self.path}: {error.strerror}") from None
+        return shorter, len(data) - cut
 
     def _acquire_lock(self):
         try:
@@ -276,13 +299,16 @@ def _check_record(record: Any, kid: str) -> str:
     return ""
 
 
-def verify(path: str | Path, key: bytes, head: str | None = None) -> VerifyResult:
+def verify(
+    path: str | Path, key: bytes, head: str | None = None, *, data: bytes | None = None
+) -> VerifyResult:
     """Checks every record's MAC, index and chain, then the signed head; names the first bad.
 
     Args:
         key: the log's key (`load_key`).
         head: a record MAC recorded elsewhere (printed by `pimbot train --audit-log`); the
             log must contain it. Without it the signed `LOG.head` must be there.
+        data: the log's bytes, if not to be read from `path` (whose head is used).
 
     Raises:
         AuditError: the log cannot be read (missing, a directory, no permission).
@@ -290,7 +316,7 @@ def verify(path: str | Path, key: bytes, head: str | None = None) -> VerifyResul
     path = Path(path)
     kid = key_id(key)
     try:
-        data = path.read_bytes()
+        data = path.read_bytes() if data is None else data
     except OSError as error:
         raise AuditError(f"audit log {path}: {error.strerror}") from None
     lines = data.split(b"\n")
