@@ -136,6 +136,8 @@ def build(choices: Choices) -> dict:
         """Run directory (created; rerun to resume). Required unless --from is given."""
         from_run: Annotated[str | None, tyro.conf.arg(name="from", metavar="RUN_DIR")] = None
         """Rerun a saved run: its config gives every default; without --out, continue it."""
+        restart: bool = False
+        """Start the run in --out over: remove what a previous run wrote there first."""
         chunk_iterations: int = 2000
         """Iterations between checkpoints (≥ 1; whole eval periods; results unchanged)."""
         quiet: bool = False

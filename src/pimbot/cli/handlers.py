@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 from pimbot import jax_setup
 from pimbot.cli.listing import print_attacks, print_envs, print_learners
@@ -34,10 +35,30 @@ def _cpu_list(text: str) -> tuple[int, ...]:
     return tuple(cpus)
 
 
-def cmd_train(args) -> int:
-    from pathlib import Path
+def check_writable(name: str, path: Path, *, directory: bool) -> None:
+    """Fails (one line naming `name`) unless `path` can be created or written as a
+    directory (or a file) — before anything is written."""
+    import os
 
-    from pimbot.experiment import runner
+    if path.exists():
+        if directory and not path.is_dir():
+            raise UsageError(f"{name}: {path} exists and is not a directory")
+        if not directory and path.is_dir():
+            raise UsageError(f"{name}: {path} is a directory, not a file")
+        if not os.access(path, os.W_OK | (os.X_OK if directory else 0)):
+            raise UsageError(f"{name}: {path} is not writable")
+        return
+    parent = path.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise UsageError(f"{name}: cannot create {path}: {parent} is not a directory")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise UsageError(f"{name}: cannot create {path}: {parent} is not writable")
+
+
+def cmd_train(args) -> int:
+    from pimbot.experiment import memory, runner, store
     from pimbot.experiment.config import (
         RunConfig,
         parse_attack_params,
@@ -68,21 +89,34 @@ def cmd_train(args) -> int:
         ),
         defenses=defense_cli.run_defenses(args),
     )
-    runner.check_run_dir(Path(args.out), resolve(run))  # nothing written on a bad command
-    on_chunk = defense_cli.chunk_logger(args.audit_log, run, args.audit_key)
-    result = runner.train(
-        run,
-        args.out,
-        progress=not args.quiet,
-        chunk_iterations=args.chunk_iterations,
-        on_chunk=on_chunk,
-        log=log,
-    )
+    out = Path(args.out)
+    check_writable("out", out, directory=True)
+    if args.audit_log is not None:
+        check_writable("audit_log", Path(args.audit_log), directory=False)
+    resolved = resolve(run)
+    memory.check_fits(resolved)  # before anything is written
+    with store.locked(out):
+        if args.restart:
+            store.clear_run(out)
+        runner.check_run_dir(out, resolved)  # nothing written on a bad command
+        on_chunk = defense_cli.chunk_logger(args.audit_log, run, args.audit_key)
+        result = runner.train(
+            run,
+            args.out,
+            progress=not args.quiet,
+            chunk_iterations=args.chunk_iterations,
+            on_chunk=on_chunk,
+            log=log,
+        )
     if on_chunk is not None:
         print(f"audit log {args.audit_log}: head {on_chunk.log.last_hash}")
+    final = result.summary.get("final") if isinstance(result.summary, dict) else None
+    if not isinstance(final, dict) or "eval/success" not in final:
+        raise UsageError(
+            f"{result.run_dir}/summary.json: damaged (no final eval/success); {store.RESTART_HINT}"
+        )
     if result.already_finished:
         print(f"{result.run_dir}: this run has already finished; nothing to do.")
-    final = result.summary["final"]
     parts = [f"success {final['eval/success']['mean']:.3f}"]
     if "eval/return_ratio" in final:
         parts.append(f"return ratio {final['eval/return_ratio']['mean']:.3f}")
@@ -96,8 +130,6 @@ def cmd_train(args) -> int:
 
 
 def _finished_runs(paths: list[str]):
-    from pathlib import Path
-
     from pimbot.experiment import store
 
     run_dirs = [Path(p) for p in paths]
@@ -115,21 +147,20 @@ def cmd_table(args) -> int:
 
 
 def cmd_plot(args) -> int:
-    from pathlib import Path
-
     from pimbot.analysis.plots import plot_runs
 
-    plot_runs(_finished_runs(args.run_dirs), Path(args.out))
+    runs = _finished_runs(args.run_dirs)
+    check_writable("out", Path(args.out), directory=False)
+    plot_runs(runs, Path(args.out))
     print(f"wrote {args.out}")
     return 0
 
 
 def cmd_profile(args) -> int:
-    from pathlib import Path
-
     from pimbot.experiment.config import parse_env_params
     from pimbot.profiling import CONTROLLERS, ProfileConfig, profile, samplers
 
+    check_writable("out", Path(args.out), directory=True)
     config = ProfileConfig(
         env_id=args.env,
         env_params=parse_env_params(args.env, list(args.env_params)),
@@ -183,13 +214,12 @@ def cmd_profile(args) -> int:
 
 def _run_suite(jobs, args, suite_name: str, loaded: tuple[str, ...]) -> int:
     """`--list` or run `jobs` into `args.out` (the machinery of reproduce and sweep)."""
-    from pathlib import Path
-
     from pimbot.experiment import sweep
     from pimbot.experiment.jobs import KINDS
 
     if args.ray_address is not None and args.backend != "ray":
         raise UsageError("ray_address: given without --backend ray")
+    check_writable("out", Path(args.out), directory=True)
     log = _log_backends(args)
     try:
         jobs = sweep.select(jobs, list(args.only))
@@ -241,14 +271,18 @@ def cmd_sweep(args, loaded: tuple[str, ...]) -> int:
 
 
 def cmd_report(args) -> int:
-    from pathlib import Path
-
     from pimbot.analysis import report
+    from pimbot.experiment.sweep import SweepError
 
     suite_dir = Path(args.suite_dir)
     if not suite_dir.is_dir():
         raise UsageError(f"suite_dir: {suite_dir} is not a directory")
-    out = report.write_report(suite_dir, Path(args.out) if args.out else suite_dir)
+    out = Path(args.out) if args.out else suite_dir
+    check_writable("out", out, directory=True)
+    try:
+        out = report.write_report(suite_dir, out)
+    except SweepError as error:
+        raise UsageError(str(error)) from None
     print(f"wrote {out / report.MARKDOWN} and {out / report.HTML}")
     return 0
 

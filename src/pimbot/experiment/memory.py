@@ -1,0 +1,52 @@
+"""Does a run fit in memory? A lower bound, known before anything is compiled or written.
+
+The learner state of every seed (parameters, optimizer moments, attack and defense
+state) is resident for the whole run, and `jax.eval_shape` gives its size from the
+shapes alone. The rollouts and gradients need more on top, so a run whose state
+alone exceeds the memory available cannot fit, and is refused with the estimate.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import psutil
+
+from pimbot.envs.core import InvalidParameter
+from pimbot.experiment.config import ResolvedRun
+
+
+def state_bytes(resolved: ResolvedRun) -> int:
+    """Bytes of the learner state of all the run's seeds (shapes only, nothing computed)."""
+    env, learner, cfg = resolved.env, resolved.learner, resolved.learner_config
+
+    def init(key):
+        return learner.init(key, env, cfg, resolved.attack, resolved.defenses)
+
+    shapes = jax.eval_shape(init, jax.random.PRNGKey(0))
+    per_seed = sum(math.prod(x.shape) * x.dtype.itemsize for x in jax.tree.leaves(shapes))
+    return per_seed * resolved.run.seeds
+
+
+def available_bytes() -> int:
+    """Memory the run can use: the first device's free memory where the backend reports
+    it (GPU), else the host's available memory."""
+    stats = jax.devices()[0].memory_stats() if jax.default_backend() != "cpu" else None
+    if stats and "bytes_limit" in stats:
+        return int(stats["bytes_limit"] - stats.get("bytes_in_use", 0))
+    return int(psutil.virtual_memory().available)
+
+
+def check_fits(resolved: ResolvedRun, available: int | None = None) -> None:
+    """Raises InvalidParameter when the state alone needs more than `available` bytes."""
+    needed = state_bytes(resolved)
+    available = available_bytes() if available is None else available
+    if needed > available:
+        params = ", ".join(f"{k}={v}" for k, v in resolved.run.env_params) or "defaults"
+        raise InvalidParameter(
+            f"size: {resolved.run.env_id} ({params}) × {resolved.run.seeds} seeds needs at "
+            f"least {needed / 2**30:.1f} GiB for the learner state alone, more than the "
+            f"{available / 2**30:.1f} GiB available; use fewer agents, seeds or smaller "
+            "networks"
+        )
