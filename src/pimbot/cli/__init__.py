@@ -179,6 +179,13 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("pimbot: interrupted; rerun the same command to resume", file=sys.stderr)
         return 130
+    except RuntimeError as error:
+        from pimbot.experiment.runner import Diverged
+
+        if not isinstance(error, Diverged):
+            raise
+        print(f"pimbot: error: {error}", file=sys.stderr)
+        return 1
     except BrokenPipeError:  # `pimbot envs | head`: the reader left, nothing to report
         import os
 

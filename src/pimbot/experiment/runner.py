@@ -42,6 +42,26 @@ class RunDirConflict(InvalidParameter):
     """The output directory holds a different run."""
 
 
+class Diverged(RuntimeError):
+    """A run produced a non-finite metric or parameter; its last finite checkpoint is kept."""
+
+
+def first_non_finite(rows: list[dict[str, Any]], host_states) -> str | None:
+    """Where a chunk first stops being finite: "iteration I, seed S: COLUMN = nan" (the
+    earliest evaluation row), or "the learner state: LEAF" when only a parameter is;
+    None when everything is finite."""
+    for row in sorted(rows, key=lambda r: (r["iteration"], r["seed"])):
+        for column, value in row.items():
+            if not column.startswith("perf/") and not math.isfinite(value):
+                return f"iteration {row['iteration']}, seed {row['seed']}: {column} = {value}"
+    leaves = jax.tree_util.tree_leaves_with_path(host_states)
+    for path, leaf in leaves:
+        leaf = np.asarray(leaf)
+        if np.issubdtype(leaf.dtype, np.floating) and not np.isfinite(leaf).all():
+            return f"the learner state: {jax.tree_util.keystr(path)} is not finite"
+    return None
+
+
 @dataclasses.dataclass(frozen=True)
 class TrainResult:
     run_dir: Path
@@ -387,6 +407,13 @@ def train(
                 "perf/seed_iters_per_s": per_chunk * period * run.seeds / chunk_s,
             }
             rows = metric_rows(resolved, chunk_metrics, seeds, perf)
+            where = first_non_finite(rows, host_states)
+            if where is not None:  # nothing of this chunk is written
+                raise Diverged(
+                    f"diverged: {where}; the last finite checkpoint (iteration "
+                    f"{done - per_chunk * period}) is kept. Lower the learning rates "
+                    "(--hp) and rerun with --restart"
+                )
             columns = columns or list(rows[0])
             store.append_rows(run_dir, columns, rows)
             store.save_checkpoint(run_dir, flax.serialization.to_bytes(host_states), done)

@@ -1,0 +1,184 @@
+"""Bad input, damaged run directories, concurrency and divergence: each ends in one clear
+line (exit status ≠ 0), nothing half-written, nothing silently wrong."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+from typing import ClassVar
+
+import jax.numpy as jnp
+import pytest
+from flax import struct
+
+from pimbot import cli
+from pimbot.attacks import Attack, register
+
+TINY = ["--seeds", "2", "--iterations", "200", "--eval-period", "100", "--eval-episodes", "2"]
+TRAIN = ["train", "ipd-v0", *TINY, "--quiet"]
+
+
+@register
+@struct.dataclass
+class NanAfter(Attack):
+    """Test attack: the adversary's incentives become NaN after `after` iterations."""
+
+    after: int = 150
+    """Iterations before the incentives turn NaN."""
+
+    name: ClassVar[str] = "test_nan_after"
+    lever: ClassVar[str] = "incentive"
+    hooks: ClassVar[tuple[str, ...]] = ("emit", "observe")
+
+    def init_state(self, key, num_agents, adversary):
+        del key, num_agents, adversary
+        return {"iterations": jnp.zeros((), jnp.int32)}
+
+    def emit(self, state, key, given_so_far):
+        del key
+        n = given_so_far.shape[0]
+        poisoned = jnp.where(state["iterations"] >= self.after, jnp.nan, 0.0)
+        return jnp.ones((n, n)), jnp.where(self.is_adversary(n)[:, None], poisoned, 0.0)
+
+    def observe(self, state, key, outcome):
+        del key, outcome
+        return {"iterations": state["iterations"] + 1}
+
+
+def _one_line_error(capsys) -> str:
+    err = capsys.readouterr().err
+    assert err.startswith("pimbot: error: ") and len(err.strip().splitlines()) == 1, err
+    return err
+
+
+def test_divergence_stops_with_iteration_and_quantity_keeping_the_last_finite_checkpoint(
+    tmp_path, capsys
+):
+    out = tmp_path / "run"
+    argv = ["train", "ipd-v0", "--seeds", "2", "--iterations", "400", "--eval-period", "100"]
+    argv += ["--chunk-iterations", "100", "--attack", "test_nan_after", "--quiet"]
+    assert cli.main([*argv, "--out", str(out)]) == 1
+    err = _one_line_error(capsys)
+    assert "diverged: iteration 200, seed 0:" in err and "nan" in err
+    assert "last finite checkpoint (iteration 100)" in err
+    meta = json.loads((out / "checkpoint" / "meta.json").read_text())
+    assert meta["iteration"] == 100
+    with open(out / "metrics.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert {r["iteration"] for r in rows} == {"100"}  # nothing of the diverged chunk
+    assert not (out / "summary.json").exists()
+
+
+def _results(run_dir) -> list[dict]:
+    """metrics.csv without its timing columns (perf/*)."""
+    with open(run_dir / "metrics.csv") as f:
+        return [
+            {k: v for k, v in r.items() if not k.startswith("perf/")} for r in csv.DictReader(f)
+        ]
+
+
+def _train(out) -> None:
+    assert cli.main([*TRAIN, "--out", str(out)]) == 0
+
+
+def _damage_metrics_truncate(out):
+    text = (out / "metrics.csv").read_text()
+    (out / "metrics.csv").write_text(text[: len(text) - 25])
+
+
+def _damage_metrics_delete(out):
+    (out / "metrics.csv").unlink()
+
+
+def _damage_checkpoint_byte(out):
+    path = out / "checkpoint" / "state.msgpack"
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 1
+    path.write_bytes(bytes(data))
+
+
+def _damage_checkpoint_meta(out):
+    (out / "checkpoint" / "meta.json").write_text('{"iteration": "many"}')
+
+
+def _damage_checkpoint_meta_garbage(out):
+    (out / "checkpoint" / "meta.json").write_bytes(b"\x00\xff\xfe")
+
+
+def _damage_config(out):
+    (out / "config.json").write_text("{not json")
+
+
+DAMAGE = {
+    "metrics truncated mid-row": (_damage_metrics_truncate, "metrics.csv: damaged (line"),
+    "metrics deleted": (_damage_metrics_delete, "metrics.csv: missing"),
+    "checkpoint byte flipped": (_damage_checkpoint_byte, "its SHA-256 differs"),
+    "checkpoint metadata wrong": (_damage_checkpoint_meta, "no valid iteration"),
+    "checkpoint metadata binary": (_damage_checkpoint_meta_garbage, "not valid JSON"),
+    "config.json garbage": (_damage_config, "config.json: damaged"),
+}
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("finished") / "run"
+    _train(out)
+    return out
+
+
+@pytest.mark.parametrize("case", DAMAGE, ids=str)
+def test_a_damaged_run_dir_refuses_to_resume_in_one_line(finished_run, tmp_path, capsys, case):
+    import shutil
+
+    damage, expected = DAMAGE[case]
+    out = tmp_path / "run"
+    shutil.copytree(finished_run, out)
+    (out / "summary.json").unlink()  # interrupted at its last checkpoint
+    damage(out)
+    assert cli.main([*TRAIN, "--out", str(out)]) == 2
+    err = _one_line_error(capsys)
+    assert expected in err and "--restart" in err
+    # --restart starts it over and finishes with the same results as the original
+    assert cli.main([*TRAIN, "--out", str(out), "--restart"]) == 0
+    assert _results(out) == _results(finished_run)
+
+
+def test_summary_json_is_strictly_valid_json(finished_run):
+    json.loads((finished_run / "summary.json").read_text(), parse_constant=pytest.fail)
+
+
+def test_two_trains_into_one_directory_the_second_is_refused(tmp_path):
+    out = tmp_path / "run"
+    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    slow = [*TRAIN[:-1], "--iterations", "20000", "--eval-period", "100"]
+    first = subprocess.Popen(
+        [sys.executable, "-m", "pimbot.cli", *slow, "--quiet", "--out", str(out)],
+        env=env,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        lock = out.parent / f".{out.name}.lock"
+        for _ in range(600):  # the first holds the lock once it has validated its command
+            if lock.exists() and (out / "config.json").exists():
+                break
+            if first.poll() is not None:
+                pytest.fail(f"first run ended early: {first.stderr.read()}")
+            import time
+
+            time.sleep(0.1)
+        second = subprocess.run(
+            [sys.executable, "-m", "pimbot.cli", *slow, "--quiet", "--out", str(out)],
+            env=env,
+            capture_output=True,
+            text=True,
+        )
+        assert second.returncode == 2
+        assert "is in use by another pimbot process" in second.stderr
+        assert len(second.stderr.strip().splitlines()) == 1
+    finally:
+        first.kill()
+        first.wait()
