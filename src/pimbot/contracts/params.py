@@ -36,3 +36,39 @@ def check_int(name: str, value: Any, low: int) -> None:
     """Raises InvalidParameter unless `value` is an integer ≥ `low`."""
     if isinstance(value, bool) or not isinstance(value, int) or value < low:
         raise InvalidParameter(f"{name}: must be an integer ≥ {low}, got {value!r}")
+
+
+def describe_range(bounds: tuple[float | None, float | None]) -> str:
+    """ "in [0, 1]" / "≥ 0" / "≤ 1" / "" for (low, high) bounds (None: unbounded)."""
+    low, high = bounds
+    if low is not None and high is not None:
+        return f"in [{low:g}, {high:g}]"
+    if low is not None:
+        return f"≥ {low:g}"
+    return f"≤ {high:g}" if high is not None else ""
+
+
+def check_fields(config: Any) -> None:
+    """Checks every field of a frozen config against its class's `RANGES`
+    (name -> (low, high); for a tuple field, each element) and, for any other number,
+    that it is finite; integers in a tuple (layer widths) default to ≥ 1. Raises
+    InvalidParameter naming the field and its range."""
+    import dataclasses
+
+    ranges = getattr(type(config), "RANGES", {})
+    for field in dataclasses.fields(config):
+        value = getattr(config, field.name)
+        items = value if isinstance(value, tuple) else (value,)
+        for index, item in enumerate(items):
+            name = field.name if not isinstance(value, tuple) else f"{field.name}[{index}]"
+            if not is_number(item):
+                continue
+            default = (1, None) if isinstance(value, tuple) else (None, None)
+            low, high = ranges.get(field.name, default)
+            if isinstance(item, int) and isinstance(field.default, int | tuple):
+                if low is not None and item < low or high is not None and item > high:
+                    raise InvalidParameter(
+                        f"{name}: must be an integer {describe_range((low, high))}, got {item!r}"
+                    )
+                continue
+            check_number(name, item, low, high)

@@ -13,6 +13,7 @@ from typing import Any
 
 from pimbot import attacks, defenses, envs, learners
 from pimbot.contracts.attack import NO_ATTACK
+from pimbot.contracts.params import check_fields
 from pimbot.envs.core import InvalidParameter
 
 DEFAULT_EVAL = {  # (eval_period, eval_episodes) by environment family, as the original
@@ -136,6 +137,7 @@ def resolve(run: RunConfig) -> ResolvedRun:
             )
         overrides[name] = coerce_like(name, value, getattr(defaults, name))
     learner_config = dataclasses.replace(defaults, **overrides)
+    check_fields(learner_config)  # finite, and within the config class's RANGES
     attack = NO_ATTACK
     if run.attack is not None:
         attack = attacks.make(run.attack, env.num_agents, **dict(run.attack_params))
