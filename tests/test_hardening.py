@@ -182,3 +182,32 @@ def test_two_trains_into_one_directory_the_second_is_refused(tmp_path):
     finally:
         first.kill()
         first.wait()
+
+
+XSS = "<script>alert(1)</script><img src=x onerror=alert(2)>"
+
+
+def test_strings_from_run_directories_are_escaped_in_the_html_report(tmp_path):
+    grid = tmp_path / "grid.toml"
+    grid.write_text(
+        'name = "g"\nseeds = 2\niterations = 200\neval_period = 100\n'
+        '[[envs]]\nid = "ipd-v0"\nlabel = "ipd"\n[[learners]]\nname = "lio"\n'
+        '[[attacks]]\nname = "fake_incentive"\n'
+    )
+    suite = tmp_path / "suite"
+    assert cli.main(["sweep", str(grid), "--out", str(suite), "--quiet"]) == 0
+    for config in suite.glob("**/config.json"):
+        saved = json.loads(config.read_text())
+        saved["identity"]["env_params"]["note"] = XSS
+        saved["identity"]["learner_config"]["incentive_updates"] = XSS
+        saved["run_config"]["attack_params"] = [["note", XSS]]
+        config.write_text(json.dumps(saved))
+    index = json.loads((suite / "index.json").read_text())
+    index["suite"] += XSS
+    for job in index["jobs"]:
+        job["error"] = XSS
+    (suite / "index.json").write_text(json.dumps(index))
+    assert cli.main(["report", str(suite), "--out", str(tmp_path / "report")]) == 0
+    html = (tmp_path / "report" / "report.html").read_text()
+    assert "&lt;script&gt;" in html  # the strings are shown ...
+    assert "<script>alert" not in html and "<img src=x" not in html  # ... never run
