@@ -108,6 +108,12 @@ def _damage_checkpoint_meta_garbage(out):
     (out / "checkpoint" / "meta.json").write_bytes(b"\x00\xff\xfe")
 
 
+def _damage_checkpoint_iteration(out):  # consistent bytes, the metadata's count changed
+    meta = json.loads((out / "checkpoint" / "meta.json").read_text())
+    meta["iteration"] = 100
+    (out / "checkpoint" / "meta.json").write_text(json.dumps(meta))
+
+
 def _damage_config(out):
     (out / "config.json").write_text("{not json")
 
@@ -118,6 +124,10 @@ DAMAGE = {
     "checkpoint byte flipped": (_damage_checkpoint_byte, "its SHA-256 differs"),
     "checkpoint metadata wrong": (_damage_checkpoint_meta, "no valid iteration"),
     "checkpoint metadata binary": (_damage_checkpoint_meta_garbage, "not valid JSON"),
+    "checkpoint metadata disagrees with the state": (
+        _damage_checkpoint_iteration,
+        "its metadata says iteration 100, the state it holds is at iteration 200",
+    ),
     "config.json garbage": (_damage_config, "config.json: damaged"),
 }
 

@@ -297,6 +297,13 @@ def _start(resolved: ResolvedRun, run_dir: Path, periods: int, cache: ProgramCac
                 f"{run_dir / store.CHECKPOINT_DIR}: damaged (the state does not load: "
                 f"{type(error).__name__}); {store.RESTART_HINT}"
             ) from None
+        counted = getattr(states, "iteration", None)  # the learner's own count, if it keeps one
+        if counted is not None and not (np.asarray(counted)[: run.seeds] == done).all():
+            raise store.DamagedRunDir(
+                f"{run_dir / store.CHECKPOINT_DIR}: damaged (its metadata says iteration "
+                f"{done}, the state it holds is at iteration "
+                f"{int(np.asarray(counted).reshape(-1)[0])}); {store.RESTART_HINT}"
+            )
     # One row per seed and evaluation; fewer (deleted, truncated) refuse to resume.
     store.truncate_rows(run_dir, done, expected_rows=run.seeds * (done // resolved.eval_period))
     if sharding is not None:
