@@ -19,7 +19,9 @@ update per seed (call time / updates / seeds; with one seed, the time of one upd
 the compile time, and with `--original-s` the ratio to the original code's time per
 update (the issue's measurement of the original torch code on one pinned core: 0.85 s;
 benchmarks/original/ measures it side by side). Pin to one core (`taskset -c 0`) for a
-per-core figure; timings taken while other processes load the machine are distorted.
+per-core figure. "(cpu)" columns are the process's CPU time instead of wall time: on a
+machine other processes load, wall time counts the waits for the core and CPU time does
+not (pinned to one core, the two agree on an idle machine).
 """
 
 from __future__ import annotations
@@ -76,15 +78,16 @@ def measure(name: str, seeds: int, updates: int, repeats: int) -> dict:
     roots = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
     if sharding is not None:
         states, roots = jax.device_put(states, sharding), jax.device_put(roots, sharding)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     chunk = make_chunk_fn(resolved, 1).lower(states, roots, *hooks).compile()
-    compile_s = time.perf_counter() - t0
+    compile_s, compile_cpu_s = time.perf_counter() - t0, time.process_time() - c0
     states, _ = jax.block_until_ready(chunk(states, roots, *hooks))  # warm-up
-    times = []
+    times, cpu = [], []
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         states, _ = jax.block_until_ready(chunk(states, roots, *hooks))
         times.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
     cfg = resolved.learner_config
     return {
         "config": name,
@@ -93,7 +96,9 @@ def measure(name: str, seeds: int, updates: int, repeats: int) -> dict:
         "voi": cfg.voi,
         "hidden": "x".join(map(str, cfg.policy_hidden)),
         "compile_s": compile_s,
+        "compile_cpu_s": compile_cpu_s,
         "update_s": statistics.median(times) / updates / seeds,
+        "update_cpu_s": statistics.median(cpu) / updates / seeds,
     }
 
 
@@ -110,16 +115,19 @@ def main() -> None:
     print(f"backend {jax.default_backend()}, {len(jax.devices())} device(s), seeds {args.seeds}")
     print(
         f"{'config':12} {'T':>3} {'envs':>5} {'voi':>8} {'hidden':>6} {'compile s':>9} "
-        f"{'s/update':>9}" + (f" {'× original':>10}" if args.original_s else "")
+        f"{'(cpu)':>6} {'s/update':>9} {'(cpu)':>7}"
+        + (f" {'× original':>10} {'(cpu)':>6}" if args.original_s else "")
     )
     for name in args.configs:
         r = measure(name, args.seeds, args.updates, args.repeats)
         line = (
             f"{r['config']:12} {r['T']:>3} {r['num_envs']:>5} {r['voi']:>8} {r['hidden']:>6} "
-            f"{r['compile_s']:>9.1f} {r['update_s']:>9.4f}"
+            f"{r['compile_s']:>9.1f} {r['compile_cpu_s']:>6.1f} {r['update_s']:>9.4f} "
+            f"{r['update_cpu_s']:>7.4f}"
         )
         if args.original_s:
             line += f" {args.original_s / r['update_s']:>10.1f}"
+            line += f" {args.original_s / r['update_cpu_s']:>6.1f}"
         print(line, flush=True)
 
 

@@ -237,10 +237,14 @@ def test_bad_options_are_refused():
 
 def test_exact_voi_by_hand_on_the_ipd():
     """p̂(defect) = 1/4 for both agents in every state: VoI(j → i) = r_i(a) − E_{a'_j} r_i."""
-    probs = jnp.broadcast_to(jnp.array([0.75, 0.25]), (32, 2, 2))
-    rewards = exact_voi.game_tables(IPD).rewards
+    tables = exact_voi.game_tables(IPD)
+    np.testing.assert_array_equal(tables.states, [1, 2, 4, 8, 16])  # one-hot 5: CC CD DC DD first
+    assert tables.first_state == 4
+    np.testing.assert_array_equal(tables.next_states, [0, 2, 1, 3])  # joint j = a0 + 2 a1
+    probs = jnp.broadcast_to(jnp.array([0.75, 0.25]), (5, 2, 2))
     actions = jnp.array([[0, 0], [0, 1], [1, 1]])  # CC, CD, DD
-    voi = exact_voi.value_of_influence(probs, rewards, jnp.array([16, 1, 8]), actions)
+    states = jax.nn.one_hot(jnp.array([4, 0, 3]), 5)
+    voi = exact_voi.value_of_influence(probs, tables, states, actions)
     # CC: agent 1's influence on 0: −1 − (0.75·−1 + 0.25·−3) = 0.5; symmetric.
     # CD: VoI(1→0) = −3 − (−1.5) = −1.5; VoI(0→1) = 0 − (0.75·0 + 0.25·−2) = 0.5.
     # DD: VoI(1→0) = −2 − (0.75·0 + 0.25·−2) = −1.5.
@@ -251,14 +255,14 @@ def test_exact_voi_by_hand_on_the_ipd():
 
 def test_action_frequencies_are_refit_when_due_and_keep_unvisited_states():
     freqs = exact_voi.init_frequencies(IPD, history=1)
-    codes = jnp.array([16, 16, 16, 16, 1])
+    states = jax.nn.one_hot(jnp.array([4, 4, 4, 4, 0]), 5)
     actions = jnp.array([[0, 1], [0, 1], [1, 1], [0, 0], [1, 0]])
     valid = jnp.array([True, True, True, True, False])
-    stale = exact_voi.store_and_refit(freqs, codes, actions, valid, 0, jnp.array(False))
+    stale = exact_voi.store_and_refit(freqs, states, actions, valid, 0, jnp.array(False))
     np.testing.assert_allclose(stale.probs, 0.5)
-    fresh = exact_voi.store_and_refit(freqs, codes, actions, valid, 0, jnp.array(True))
-    np.testing.assert_allclose(fresh.probs[16], [[0.75, 0.25], [0.25, 0.75]])
-    np.testing.assert_allclose(fresh.probs[1], 0.5)  # only an invalid step visited it
+    fresh = exact_voi.store_and_refit(freqs, states, actions, valid, 0, jnp.array(True))
+    np.testing.assert_allclose(fresh.probs[4], [[0.75, 0.25], [0.25, 0.75]])
+    np.testing.assert_allclose(fresh.probs[0], 0.5)  # only an invalid step visited it
 
 
 def test_tabulated_ppo_equals_the_per_sample_ppo():
@@ -272,14 +276,15 @@ def test_tabulated_ppo_equals_the_per_sample_ppo():
     per_sample = reciprocator.ppo_update(
         env, cfg, state.policy, state.value, state.opt, trajs, returns, sign
     )
+    tables = exact_voi.game_tables(env)
     tabulated = tabular.ppo_update(
         reciprocator._modules(env, cfg),
         cfg,
-        env.obs_dim,
+        tables,
         state.policy,
         state.value,
         state.opt,
-        exact_voi.state_codes(trajs.obs).reshape(-1),
+        exact_voi.state_one_hot(trajs.obs, tables).reshape(-1, len(tables.states)),
         jnp.moveaxis(trajs.actions, 2, 0).reshape(n, -1),
         jnp.moveaxis(returns, 2, 0).reshape(n, -1),
         trajs.valid.reshape(-1),
@@ -303,8 +308,9 @@ def test_tabulated_play_follows_the_game():
             np.testing.assert_allclose(trajs.env_rewards[e, t], r)
             assert bool(trajs.success[e, t]) == bool(info["success"])
     # the sampled actions follow the policy: agent 0's first-step action frequency
-    logits = tabular.logits_table(reciprocator._modules(env, cfg)[0], state.policy, 7, 3)
-    p = jax.nn.softmax(logits[:, exact_voi.game_tables(env).first_code])
+    tables = exact_voi.game_tables(env)
+    logits = tabular.logits_table(reciprocator._modules(env, cfg)[0], state.policy, tables, 3)
+    p = jax.nn.softmax(logits[:, tables.first_state])
     wide = dataclasses.replace(cfg, num_envs=4000)
     first = reciprocator.play_batch(
         env, wide, state.policy, jax.random.PRNGKey(2), NO_ATTACK, 0, {}

@@ -11,9 +11,12 @@ last `history` batches, refreshed every `refit_period` iterations (the
 original: the last 1 batch, every 3). The VoI is the reward term only, as in
 the original's matrix agent (it argues that the future values cancel).
 
-States are the codes Σ_d obs_d·2^d of the (binary, shared) observation; a
-state not visited in the stored batches keeps its previous estimate, uniform at
-the start (the original starts at p = 0.5, and would produce NaN there).
+States are the reachable values of the (binary, shared) observation, found by
+tabulating the game (`game_tables`) and indexed densely; per-sample work uses
+one-hot states and small matrix products rather than gathers and scatters (fast
+under the seed vmap). A state not visited in the stored batches keeps its
+previous estimate, uniform at the start (the original starts at p = 0.5, and
+would produce NaN there).
 """
 
 from __future__ import annotations
@@ -28,13 +31,13 @@ from flax import struct
 from pimbot.envs.core import InvalidParameter
 from pimbot.envs.matrix_games import MatrixGame
 
-MAX_OBS_BITS = 16
-"""Largest observation size whose state codes are tabulated (2^16 states)."""
+MAX_OBS_BITS = 30
+"""Largest observation size whose state codes fit an int32."""
 
 
 @struct.dataclass
 class ActionFrequencies:
-    probs: jax.Array  # float32 [K, N, A]: p̂_j(a | s), the estimate in use
+    probs: jax.Array  # float32 [K, N, A]: p̂_j(a | s) per reachable state, the estimate in use
     counts: jax.Array  # float32 [H, K, N, A]: per stored batch, visits of (s, j, a)
 
 
@@ -47,22 +50,26 @@ def check_env(env) -> None:
         )
     if env.obs_dim > MAX_OBS_BITS:
         raise InvalidParameter(
-            f"voi: 'exact' tabulates 2^obs_dim states, obs_dim {env.obs_dim} > {MAX_OBS_BITS}"
+            f"voi: 'exact' codes observations as integers, obs_dim {env.obs_dim} > {MAX_OBS_BITS}"
         )
 
 
 @dataclasses.dataclass(frozen=True)
 class GameTables:
-    """A matrix game's rules as tables over the joint action j = Σ_k a_k A^k."""
+    """A matrix game's rules as tables over its reachable states (dense index k, in the
+    order of their codes) and the joint action j = Σ_m a_m A^m."""
 
-    rewards: np.ndarray  # float32 [A^N, N]
-    next_codes: np.ndarray  # int32 [A^N]: state code of the observation after the step
-    success: np.ndarray  # bool [A^N]
-    first_code: int  # state code of the first observation
+    states: np.ndarray  # int32 [K]: the reachable state codes, sorted
+    state_obs: np.ndarray  # float32 [K, obs_dim]: each state's observation
+    first_state: int  # dense index of the first observation
+    next_states: np.ndarray  # int32 [J]: dense state after joint action j
+    rewards: np.ndarray  # float32 [J, N]
+    success: np.ndarray  # bool [J]
+    alternative: np.ndarray  # float32 [J, N m, A a', N i]: r_i with agent m's action := a'
 
 
 def joint_actions(num_agents: int, num_actions: int) -> np.ndarray:
-    """int32 [A^N, N]: joint action j's per-agent actions (agent k is digit k of j)."""
+    """int32 [A^N, N]: joint action j's per-agent actions (agent m is digit m of j)."""
     index = np.arange(num_actions**num_agents)
     return ((index[:, None] // num_actions ** np.arange(num_agents)) % num_actions).astype(np.int32)
 
@@ -70,29 +77,58 @@ def joint_actions(num_agents: int, num_actions: int) -> np.ndarray:
 def game_tables(env: MatrixGame) -> GameTables:
     """Tabulates `env.step` over every joint action (a matrix game's step depends on the
     joint action only), at trace time."""
-    joints = joint_actions(env.num_agents, env.num_actions)
+    n, a = env.num_agents, env.num_actions
+    joints = joint_actions(n, a)
     key = jax.random.PRNGKey(0)  # matrix games are deterministic
     with jax.ensure_compile_time_eval():
         obs, state = env.reset(key)
         next_obs, _, rewards, _, info = jax.vmap(env.step, in_axes=(None, None, 0))(
             key, state, jnp.asarray(joints)
         )
-        return GameTables(
-            rewards=np.asarray(rewards, np.float32),
-            next_codes=np.asarray(state_codes(next_obs), np.int32),
-            success=np.asarray(info["success"], bool),
-            first_code=int(state_codes(obs)),
-        )
+        first, after = int(state_codes(obs)), np.asarray(state_codes(next_obs))
+        first_obs, after_obs = np.asarray(obs[0]), np.asarray(next_obs[:, 0])
+        rewards, success = np.asarray(rewards, np.float32), np.asarray(info["success"], bool)
+    states = np.unique(np.append(after, first)).astype(np.int32)
+    state_obs = np.zeros((len(states), env.obs_dim), np.float32)
+    state_obs[np.searchsorted(states, after)] = after_obs
+    state_obs[np.searchsorted(states, first)] = first_obs
+    place = a ** np.arange(n)
+    swapped = (
+        np.arange(len(joints))[:, None, None]
+        - (joints * place)[:, :, None]
+        + place[None, :, None] * np.arange(a)[None, None, :]
+    )  # [J, N m, A]
+    return GameTables(
+        states=states,
+        state_obs=state_obs,
+        first_state=int(np.searchsorted(states, first)),
+        next_states=np.searchsorted(states, after).astype(np.int32),
+        rewards=rewards,
+        success=success,
+        alternative=rewards[swapped],
+    )
 
 
 def state_codes(obs: jax.Array) -> jax.Array:
-    """int32 [...] state code of agent 0's binary observation: obs [..., N, obs_dim]."""
+    """int32 [...] state code Σ_d obs_d 2^d of agent 0's binary observation [..., N, obs_dim]."""
     bits = jnp.round(obs[..., 0, :]).astype(jnp.int32)
     return jnp.sum(bits << jnp.arange(obs.shape[-1], dtype=jnp.int32), axis=-1)
 
 
+def state_one_hot(obs: jax.Array, tables: GameTables) -> jax.Array:
+    """float32 [..., K]: the one-hot dense state of observations [..., N, obs_dim]."""
+    codes = state_codes(obs)
+    return (codes[..., None] == jnp.asarray(tables.states)).astype(jnp.float32)
+
+
+def joint_index(actions: jax.Array, num_actions: int) -> jax.Array:
+    """int32 [...]: joint action index of actions int [..., N]."""
+    place = jnp.asarray(num_actions ** np.arange(actions.shape[-1]), jnp.int32)
+    return jnp.sum(actions * place, axis=-1)
+
+
 def init_frequencies(env, history: int) -> ActionFrequencies:
-    states, n, a = 2**env.obs_dim, env.num_agents, env.num_actions
+    states, n, a = len(game_tables(env).states), env.num_agents, env.num_actions
     return ActionFrequencies(
         probs=jnp.full((states, n, a), 1.0 / a, jnp.float32),
         counts=jnp.zeros((history, states, n, a), jnp.float32),
@@ -101,7 +137,7 @@ def init_frequencies(env, history: int) -> ActionFrequencies:
 
 def store_and_refit(
     freqs: ActionFrequencies,
-    codes: jax.Array,
+    states: jax.Array,
     actions: jax.Array,
     valid: jax.Array,
     slot: jax.Array,
@@ -110,11 +146,11 @@ def store_and_refit(
     """Stores this batch's visits in ring slot `slot`; when `due`, re-estimates p̂.
 
     Args:
-        codes: int [S] state codes; actions: int [S, N]; valid: bool [S].
+        states: float [S, K] one-hot dense states; actions: int [S, N]; valid: bool [S].
     """
-    num_states, _, num_actions = freqs.probs.shape
+    num_actions = freqs.probs.shape[-1]
     one_hot = jax.nn.one_hot(actions, num_actions, dtype=jnp.float32) * valid[:, None, None]
-    batch = jax.ops.segment_sum(one_hot, codes, num_segments=num_states)  # [K, N, A]
+    batch = jnp.einsum("sk,sna->kna", states, one_hot)  # [K, N, A]
     counts = freqs.counts.at[slot].set(batch)
     total = counts.sum(axis=0)
     visits = total.sum(axis=-1, keepdims=True)
@@ -123,27 +159,20 @@ def store_and_refit(
 
 
 def value_of_influence(
-    probs: jax.Array, rewards: np.ndarray, codes: jax.Array, actions: jax.Array
+    probs: jax.Array, tables: GameTables, states: jax.Array, actions: jax.Array
 ) -> jax.Array:
     """VoI(j → i) for every ordered pair, zero on the diagonal.
 
     Args:
-        probs: [K, N, A] p̂; rewards: [A^N, N] (`GameTables.rewards`); codes: int [...];
-        actions: int [..., N].
+        probs: [K, N, A] p̂; states: float [..., K] one-hot dense states; actions: int [..., N].
     Returns:
         [..., N influencer j, N influenced i].
     """
     num_states, n, a = probs.shape
-    place = jnp.asarray(a ** np.arange(n), jnp.int32)  # [N]
-    joint = jnp.sum(actions * place, axis=-1)  # [...]
-    rewards = jnp.asarray(rewards)
-    actual = rewards[joint]  # [..., N i]
-    # joint index with agent j's action replaced by a': [..., N j, A a']
-    swapped = (joint[..., None, None] - (actions * place)[..., :, None]) + (
-        place[:, None] * jnp.arange(a, dtype=jnp.int32)[None, :]
-    )
-    alternative = rewards[swapped]  # [..., N j, A, N i]
-    p = probs[codes]  # [..., N j, A]
-    baseline = jnp.sum(p[..., None] * alternative, axis=-2)  # [..., N j, N i]
+    joint = joint_index(actions, a)
+    actual = jnp.asarray(tables.rewards)[joint]  # [..., N i]
+    alternative = jnp.asarray(tables.alternative)[joint]  # [..., N j, A, N i]
+    p = (states @ probs.reshape(num_states, n * a)).reshape(states.shape[:-1] + (n, a))
+    baseline = jnp.einsum("...ja,...jai->...ji", p, alternative)
     voi = actual[..., None, :] - baseline
     return voi * (1.0 - jnp.eye(n, dtype=voi.dtype))

@@ -273,11 +273,12 @@ def play_batch(env, cfg, policy, key, attack, env_steps, attack_state) -> Trajec
     With `voi="exact"` (a matrix game) the policies are tabulated per state first, and
     without an attack that acts the batch is played by `tabular.play`."""
     if cfg.voi == "exact":
-        logits = tabular.logits_table(_modules(env, cfg)[0], policy, env.obs_dim, env.num_agents)
+        tables = exact_voi.game_tables(env)
+        logits = tabular.logits_table(_modules(env, cfg)[0], policy, tables, env.num_agents)
         trajs = None if "act" in attack.hooks else tabular.play(env, logits, key, cfg.num_envs)
         if trajs is not None:
             return trajs
-        act = tabular.act_from_table(logits)
+        act = tabular.act_from_table(logits, tables)
     else:
         act = act_fn(_modules(env, cfg)[0], policy, jnp.float32(0.0))
     keys = jax.random.split(key, cfg.num_envs)
@@ -345,17 +346,17 @@ def influence_step(env, cfg, state: ReciprocatorState, key, trajs: Trajectory):
         extra metrics).
     """
     if cfg.voi == "exact":
-        codes = exact_voi.state_codes(trajs.obs)  # [E, T]
+        tables = exact_voi.game_tables(env)
+        states = exact_voi.state_one_hot(trajs.obs, tables)  # [E, T, K]
         models = exact_voi.store_and_refit(
             state.models,
-            codes.reshape(-1),
+            states.reshape(-1, states.shape[-1]),
             trajs.actions.reshape(-1, env.num_agents),
             trajs.valid.reshape(-1),
             state.iteration % cfg.voi_history,
             refit_due(cfg, state.iteration),
         )
-        rewards = exact_voi.game_tables(env).rewards
-        voi = exact_voi.value_of_influence(models.probs, rewards, codes, trajs.actions)
+        voi = exact_voi.value_of_influence(models.probs, tables, states, trajs.actions)
         return models, None, voi * trajs.valid[..., None, None], {}
     x = influence.model_inputs(trajs.obs, trajs.actions, env.num_actions)  # [E, T, in_dim]
     models, replay, model_loss = refit_models(env, cfg, state, key, x, trajs)
@@ -427,15 +428,16 @@ def update(
     returns = normalized_returns(rewards, trajs.valid, cfg.gamma)
     sign = attack.policy_sign(state.attack_state, env.num_agents)
     if cfg.voi == "exact":  # a matrix game: the same PPO loss, summed per state
-        n = env.num_agents
+        n, tables = env.num_agents, exact_voi.game_tables(env)
+        states = exact_voi.state_one_hot(trajs.obs, tables)
         policy, value, opt = tabular.ppo_update(
             _modules(env, cfg),
             cfg,
-            env.obs_dim,
+            tables,
             state.policy,
             state.value,
             state.opt,
-            exact_voi.state_codes(trajs.obs).reshape(-1),
+            states.reshape(-1, states.shape[-1]),
             jnp.moveaxis(trajs.actions, 2, 0).reshape(n, -1),
             jnp.moveaxis(returns, 2, 0).reshape(n, -1),
             trajs.valid.reshape(-1),

@@ -1,8 +1,8 @@
 """The Reciprocator on a matrix game, tabulated per state: its batch of games and its PPO.
 
-A matrix game's observation takes few values (its binary state code,
-`exact_voi.state_codes`), so the policy and value networks need only be run on
-the K = 2^obs_dim possible observations. Playing then samples every game's
+A matrix game's observation takes few values (its reachable states,
+`exact_voi.game_tables`), so the policy and value networks need only be run on
+those K observations. Playing then samples every game's
 actions from the per-state logits, with the randomness of the whole batch drawn
 at once (`play`); and the PPO loss of
 `reciprocator.ppo_loss` regroups exactly into sums per (state, action):
@@ -13,8 +13,9 @@ at once (`play`); and the PPO loss of
 * the entropy depends only on the state; the value loss Σ (V̂_k − G_s)² =
   n_k V̂_k² − 2 V̂_k Σ G_s + Σ G_s².
 
-The per-sample work of an epoch is then a subtraction and two segment sums;
-every network call and its gradient is on K rows. Same loss as the per-sample
+The per-sample work of an epoch is then a subtraction and small matrix products
+with the one-hot states (no gathers or scatters, which are slow under the seed
+vmap); every network call and its gradient is on K rows. Same loss as the per-sample
 form up to the order of floating-point summation.
 """
 
@@ -22,7 +23,6 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 import optax
 
 from pimbot import nets
@@ -30,25 +30,18 @@ from pimbot.learners import exact_voi
 from pimbot.rollout import Trajectory, step_metric_names
 
 
-def obs_table(obs_dim: int) -> np.ndarray:
-    """float32 [K, obs_dim]: the observation of every state code (its bits)."""
-    codes = np.arange(2**obs_dim)
-    return ((codes[:, None] >> np.arange(obs_dim)[None, :]) & 1).astype(np.float32)
+def logits_table(module, policy, tables: exact_voi.GameTables, num_agents: int) -> jax.Array:
+    """[N, K, A]: every agent's logits in every reachable state."""
+    obs = jnp.asarray(tables.state_obs)
+    return nets.apply_stacked(module, policy, jnp.broadcast_to(obs, (num_agents,) + obs.shape))
 
 
-def logits_table(module, policy, obs_dim: int, num_agents: int) -> jax.Array:
-    """[N, K, A]: every agent's logits in every state."""
-    table = jnp.broadcast_to(jnp.asarray(obs_table(obs_dim)), (num_agents, 2**obs_dim, obs_dim))
-    return nets.apply_stacked(module, policy, table)
-
-
-def act_from_table(logits: jax.Array):
-    """A rollout `act` function sampling from precomputed per-state logits [N, K, A]."""
-    agents = jnp.arange(logits.shape[0])
+def act_from_table(logits: jax.Array, tables: exact_voi.GameTables):
+    """A rollout `act` function sampling from per-state logits [N, K, A]."""
 
     def act(key, obs):
-        code = exact_voi.state_codes(obs)
-        return jax.random.categorical(key, logits[agents, code])
+        per_state = jnp.einsum("k,nka->na", exact_voi.state_one_hot(obs, tables), logits)
+        return jax.random.categorical(key, per_state)
 
     return act
 
@@ -59,30 +52,28 @@ def play(env, logits: jax.Array, key: jax.Array, num_envs: int) -> Trajectory | 
     declares per-step metrics).
 
     A matrix game's step depends on the joint action only and every episode lasts
-    `max_steps` steps, so the games run on state codes through `exact_voi.game_tables`;
+    `max_steps` steps, so the games run on dense states through `exact_voi.game_tables`;
     the actions are inverse-CDF samples of the softmax, the uniforms of all games and
     steps drawn in one call."""
     if step_metric_names(env):
         return None
     n, steps, num_actions = env.num_agents, env.max_steps, env.num_actions
     tables = exact_voi.game_tables(env)
-    place = jnp.asarray(num_actions ** np.arange(n), jnp.int32)
-    next_codes = jnp.asarray(tables.next_codes)
-
+    next_states = jnp.asarray(tables.next_states)
     # inverse-CDF sampling: action = #{a < A − 1 : u > P(action ≤ a)}
     cdf = jnp.cumsum(jax.nn.softmax(logits), axis=-1)[..., :-1]  # [N, K, A − 1]
 
-    def body(codes, u):
-        below = jnp.moveaxis(cdf[:, codes], 0, 1)  # [E, N, A − 1]
+    def body(states, u):
+        below = jnp.moveaxis(cdf[:, states], 0, 1)  # [E, N, A − 1]
         actions = jnp.sum(u[..., None] > below, axis=-1).astype(jnp.int32)
-        joint = jnp.sum(actions * place, axis=-1)
-        return next_codes[joint], (codes, actions, joint)
+        joint = exact_voi.joint_index(actions, num_actions)
+        return next_states[joint], (states, actions, joint)
 
     noise = jax.random.uniform(key, (steps, num_envs, n))
-    first = jnp.full((num_envs,), tables.first_code, jnp.int32)
-    _, (codes, actions, joint) = jax.lax.scan(body, first, noise)
-    codes, actions, joint = codes.T, jnp.swapaxes(actions, 0, 1), joint.T  # [E, T, ...]
-    obs = jnp.asarray(obs_table(env.obs_dim))[codes]  # [E, T, obs_dim]
+    first = jnp.full((num_envs,), tables.first_state, jnp.int32)
+    _, (states, actions, joint) = jax.lax.scan(body, first, noise)
+    states, actions, joint = states.T, jnp.swapaxes(actions, 0, 1), joint.T  # [E, T, ...]
+    obs = jnp.asarray(tables.state_obs)[states]  # [E, T, obs_dim]
     zeros = jnp.zeros((num_envs, steps, n, n), jnp.float32)
     return Trajectory(
         obs=jnp.broadcast_to(obs[:, :, None, :], (num_envs, steps, n, env.obs_dim)),
@@ -97,41 +88,39 @@ def play(env, logits: jax.Array, key: jax.Array, num_envs: int) -> Trajectory | 
     )
 
 
-def ppo_update(modules, cfg, obs_dim, policy, value, opt, codes, actions, returns, valid, sign):
+def ppo_update(modules, cfg, tables, policy, value, opt, states, actions, returns, valid, sign):
     """`cfg.ppo_epochs` full-batch Adam steps of the PPO loss, regrouped per state.
 
     Args:
-        modules: (policy, value) networks; obs_dim: observation size (K = 2^obs_dim);
-        codes: int [S] state codes; actions: int [N, S]; returns: [N, S] normalized
-        returns; valid: bool [S]; sign: [N] (the policy term's sign per agent).
+        modules: (policy, value) networks; tables: the game's `exact_voi.GameTables`;
+        states: float [S, K] one-hot dense states; actions: int [N, S]; returns: [N, S]
+        normalized returns; valid: bool [S]; sign: [N] (the policy term's sign per agent).
     Returns:
         (policy, value, opt).
     """
     policy_module, value_module = modules
     n = actions.shape[0]
-    num_states, num_actions = 2**obs_dim, policy_module.out_dim
-    table = jnp.broadcast_to(jnp.asarray(obs_table(obs_dim)), (n, num_states, obs_dim))
+    obs = jnp.asarray(tables.state_obs)
+    table = jnp.broadcast_to(obs, (n,) + obs.shape)
     mask = valid.astype(jnp.float32)
     count = jnp.maximum(mask.sum(), 1.0)
-    groups = codes[None, :] * num_actions + actions  # [N, S], group g = (state, action)
-    seg = jax.vmap(lambda v, g: jax.ops.segment_sum(v, g, num_segments=num_states * num_actions))
+    states = states * mask[:, None]  # [S, K]
+    taken = jax.nn.one_hot(actions, policy_module.out_dim, dtype=jnp.float32)  # [N, S, A]
 
-    def per_group(v):  # [N, S] -> [N, K, A]
-        return seg(v * mask, groups).reshape(n, num_states, num_actions)
+    def per_group(v):  # [N, S] -> [N, K, A]: sums over the valid samples of each group
+        return jnp.einsum("sk,nsa->nka", states, taken * v[..., None])
 
-    def per_state(v):  # [N, S] -> [N, K]
-        return jax.vmap(lambda x: jax.ops.segment_sum(x, codes, num_segments=num_states))(v * mask)
-
-    visits = per_state(jnp.ones_like(returns))  # [N, K]
-    return_sum, return_sq = per_state(returns), per_state(returns**2)
+    visits = jnp.sum(states, axis=0)  # [K]
+    return_sum = jnp.einsum("sk,ns->nk", states, returns)
+    return_sq = jnp.einsum("sk,ns->nk", states, returns**2)
     old = jax.nn.log_softmax(nets.apply_stacked(policy_module, policy, table))  # [N, K, A]
-    agents = jnp.arange(n)[:, None]
 
     def loss_fn(params):
         pol, val = params
         log_probs = jax.nn.log_softmax(nets.apply_stacked(policy_module, pol, table))
         values = nets.apply_stacked(value_module, val, table)[..., 0]  # [N, K]
-        advantage = returns - jax.lax.stop_gradient(values)[agents, codes]  # [N, S]
+        at_sample = jnp.einsum("sk,nk->ns", states, jax.lax.stop_gradient(values))
+        advantage = returns - at_sample  # [N, S] (invalid samples carry no weight)
         positive = per_group(jnp.maximum(advantage, 0.0))
         negative = per_group(jnp.minimum(advantage, 0.0))
         ratio = jnp.exp(log_probs - old)
