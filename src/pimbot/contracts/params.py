@@ -12,6 +12,11 @@ def is_number(value: Any) -> bool:
     return not isinstance(value, bool) and isinstance(value, int | float)
 
 
+MAX_MAGNITUDE = 1e6
+"""A parameter without a declared bound must still lie in [−1e6, 1e6]: beyond, float32
+training overflows or stalls, so a value like 1e30 is a typo, not an experiment."""
+
+
 def check_number(
     name: str,
     value: Any,
@@ -20,7 +25,10 @@ def check_number(
     *,
     strict_low: bool = False,
 ) -> None:
-    """Raises InvalidParameter unless `value` is a finite number in the range."""
+    """Raises InvalidParameter unless `value` is a finite number in the range (an absent
+    bound is ±`MAX_MAGNITUDE`)."""
+    low = -MAX_MAGNITUDE if low is None else low
+    high = MAX_MAGNITUDE if high is None else high
     lower = "" if low is None else (f"> {low:g}" if strict_low else f"≥ {low:g}")
     upper = "" if high is None else f"≤ {high:g}"
     bound = " and ".join(b for b in (lower, upper) if b)
@@ -48,11 +56,12 @@ def describe_range(bounds: tuple[float | None, float | None]) -> str:
     return f"≤ {high:g}" if high is not None else ""
 
 
-def check_fields(config: Any) -> None:
+def check_fields(config: Any, default_low: float | None = 0.0) -> None:
     """Checks every field of a frozen config against its class's `RANGES`
     (name -> (low, high); for a tuple field, each element) and, for any other number,
-    that it is finite; integers in a tuple (layer widths) default to ≥ 1. Raises
-    InvalidParameter naming the field and its range."""
+    that it is finite, ≥ `default_low` (hyperparameters are rates, weights and counts)
+    and within ±`MAX_MAGNITUDE`; integers in a tuple (layer widths) default to ≥ 1.
+    Raises InvalidParameter naming the field and its range."""
     import dataclasses
 
     ranges = getattr(type(config), "RANGES", {})
@@ -63,7 +72,7 @@ def check_fields(config: Any) -> None:
             name = field.name if not isinstance(value, tuple) else f"{field.name}[{index}]"
             if not is_number(item):
                 continue
-            default = (1, None) if isinstance(value, tuple) else (None, None)
+            default = (1, None) if isinstance(value, tuple) else (default_low, None)
             low, high = ranges.get(field.name, default)
             if isinstance(item, int) and isinstance(field.default, int | tuple):
                 if low is not None and item < low or high is not None and item > high:
