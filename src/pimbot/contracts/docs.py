@@ -38,12 +38,24 @@ def field_docs(cls: type) -> dict[str, str]:
     return docs
 
 
-def describe(cls: type, values: dict, indent: str = "    ") -> list[str]:
-    """`name = value` lines, each followed by the field's docstring when it has one."""
+def bounds_text(bounds: tuple) -> str:
+    low, high = bounds
+    if low is not None and high is not None:
+        return f"{low:g} … {high:g}"
+    return f"≥ {low:g}" if low is not None else f"≤ {high:g}"
+
+
+def describe(
+    cls: type, values: dict, indent: str = "    ", ranges: dict | None = None
+) -> list[str]:
+    """`name = value` lines (with the allowed range, where `ranges` gives one), each
+    followed by the field's docstring when it has one."""
     docs = field_docs(cls)
     lines = []
     for name, value in values.items():
-        lines.append(f"{indent}{name} = {value!r}")
+        bounds = (ranges or {}).get(name)
+        allowed = f"  (allowed: {bounds_text(bounds)})" if bounds else ""
+        lines.append(f"{indent}{name} = {value!r}{allowed}")
         if docs.get(name):
             lines += textwrap.wrap(
                 docs[name], 92, initial_indent=indent + "    ", subsequent_indent=indent + "    "

@@ -10,7 +10,7 @@ on env + received-incentive rewards.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -54,6 +54,13 @@ class PGConfig:
     """Final ε."""
     epsilon_decay_iters: int = 1000
     """Iterations over which ε decays linearly."""
+
+    RANGES: ClassVar[dict] = {
+        "gamma": (0.0, 1.0),
+        "epsilon_start": (0.0, 1.0),
+        "epsilon_end": (0.0, 1.0),
+    }
+    """Checked ranges (low, high) of the fields; the others are ≥ 0 (`check_fields`)."""
 
 
 @struct.dataclass

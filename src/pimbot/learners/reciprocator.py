@@ -28,7 +28,7 @@ the `AdversaryView` of the batch (ADMO on θ_a; the signal the adversary
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -98,6 +98,17 @@ class ReciprocatorConfig:
     """The balance B_{t−1} that scales the reciprocal reward: "accumulated" (γ B + VoI(j→self)
     − VoI(self→j), the general agent) or "one_step" (VoI(j→self, t−1) only: no accumulation,
     no debit, the original's IPD agent)."""
+
+    RANGES: ClassVar[dict] = {
+        "num_envs": (1, None),
+        "ppo_epochs": (1, None),
+        "clip": (0.0, 1.0),
+        "gamma": (0.0, 1.0),
+        "voi_refit_period": (1, None),
+        "voi_history": (1, None),
+        "voi_batch": (1, None),
+    }
+    """Checked ranges (low, high) of the fields; the others are ≥ 0 (`check_fields`)."""
 
 
 VOI_KINDS = ("learned", "exact")
