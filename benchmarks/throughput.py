@@ -373,6 +373,217 @@ def extrapolation(results: list[dict[str, Any]]) -> str:
     )
 
 
+# --- `--lio-report`: per-iteration cost of LIO, clean vs ADMO, growth with N, flops ---------
+
+REPORT_CONFIGS = ("er21", "er42", "er43", "er84")
+"""Cost growth with N is measured on these; the ADMO ratio on RATIO_CONFIGS."""
+RATIO_CONFIGS = ("er21", "er43")
+PEAK_FLOPS_PER_CYCLE = 32
+"""fp32 AVX2 peak per core: 2 FMA units × 8 lanes × 2 flops (AVX-512 on Zen 4 is double-pumped
+256-bit, the same per cycle)."""
+ELEMENTWISE = {
+    "add", "sub", "mul", "div", "neg", "max", "min", "exp", "log", "log1p", "expm1", "tanh",
+    "logistic", "sqrt", "rsqrt", "pow", "integer_pow", "abs", "sign", "square", "exp2",
+    "reduce_sum", "reduce_max", "reduce_min", "cumsum", "cumlogsumexp", "cummax", "erf",
+    "select_n", "clamp", "ge", "gt", "le", "lt", "eq", "ne", "and", "or", "not",
+}  # fmt: skip
+"""Primitives counted as one flop per element (reductions per input element), as XLA's
+cost analysis counts them; data movement (broadcast, reshape, slices, gathers) is free."""
+
+
+def jaxpr_flops(jaxpr) -> tuple[float, float]:
+    """(matmul flops, other arithmetic flops) of a jaxpr, scan bodies times their length.
+
+    XLA's own cost analysis counts a loop body once; LIO's rollouts are `lax.scan`s over
+    the episode's steps, so the count is taken on the jaxpr instead (same conventions:
+    2·M·N·K per matmul, one flop per element of an arithmetic op).
+    """
+    import math
+
+    dots = other = 0.0
+    for eqn in jaxpr.eqns:
+        name = eqn.primitive.name
+        params = eqn.params
+        subs = [v for v in params.values() if hasattr(v, "jaxpr") or hasattr(v, "eqns")]
+        subs += [
+            b for v in params.values() if isinstance(v, tuple) for b in v if hasattr(b, "jaxpr")
+        ]
+        if name == "scan":
+            d, o = jaxpr_flops(params["jaxpr"].jaxpr)
+            dots, other = dots + params["length"] * d, other + params["length"] * o
+        elif name == "cond":
+            costs = [jaxpr_flops(b.jaxpr) for b in params["branches"]]
+            d, o = max(costs, key=sum)
+            dots, other = dots + d, other + o
+        elif subs:
+            for sub in subs:
+                d, o = jaxpr_flops(getattr(sub, "jaxpr", sub))
+                dots, other = dots + d, other + o
+        elif name == "dot_general":
+            (contract, _), _ = params["dimension_numbers"]
+            lhs = eqn.invars[0].aval.shape
+            k = math.prod(lhs[i] for i in contract)
+            dots += 2.0 * math.prod(eqn.outvars[0].aval.shape) * k
+        elif name in ELEMENTWISE:
+            sizes = [
+                math.prod(v.aval.shape) for v in (*eqn.invars, *eqn.outvars) if hasattr(v, "aval")
+            ]
+            other += float(max(sizes, default=0))
+    return dots, other
+
+
+def core_peak() -> tuple[float | None, str]:
+    """(fp32 peak flop/s of one core, description) from /proc/cpuinfo's current clock."""
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return None, "unknown CPU"
+    model = re.search(r"model name\s*:\s*(.*)", text)
+    mhz = re.search(r"cpu MHz\s*:\s*([\d.]+)", text)
+    if not mhz:
+        return None, model.group(1) if model else "unknown CPU"
+    ghz = float(mhz.group(1)) / 1000
+    desc = (
+        f"{model.group(1) if model else 'CPU'} at {ghz:.2f} GHz × {PEAK_FLOPS_PER_CYCLE} flop/cycle"
+    )
+    return ghz * 1e9 * PEAK_FLOPS_PER_CYCLE, desc
+
+
+def update_case(config: str, attack_name: str | None, seeds: int, iterations: int):
+    """A compiled program of `iterations` LIO iterations for `seeds` seeds (one device), its
+    states, and the flops of one seed-iteration. The learner's own `update`, scanned and
+    vmapped over seeds as training does, metrics averaged as in a training period;
+    no evaluation episodes (identical with and without the attack)."""
+    import jax
+
+    from pimbot.experiment.config import RunConfig, resolve
+
+    n, m = parse_config(config)
+    run = RunConfig(
+        env_id=ENV_ID,
+        env_params=tuple(sorted({"n_agents": n, "min_at_lever": m}.items())),
+        learner="lio",
+        seeds=seeds,
+        attack=attack_name,
+    )
+    r = resolve(run)
+    env, learner, cfg = r.env, r.learner, r.learner_config
+
+    def init(key):
+        return learner.init(key, env, cfg, r.attack, r.defenses)
+
+    def step(state, attack, defenses):
+        return learner.update(state, env, cfg, attack, defenses)
+
+    def chunk(states, attack, defenses):
+        def body(states, _):
+            return jax.vmap(step, in_axes=(0, None, None))(states, attack, defenses)
+
+        states, metrics = jax.lax.scan(body, states, None, length=iterations)
+        return states, jax.tree.map(lambda x: x.mean(axis=0), metrics)
+
+    states = jax.jit(jax.vmap(init))(jax.random.split(jax.random.PRNGKey(0), seeds))
+    t0 = time.perf_counter()
+    compiled = jax.jit(chunk).lower(states, r.attack, r.defenses).compile()
+    compile_s = time.perf_counter() - t0
+    one = jax.tree.map(lambda x: x[0], states)
+    dots, other = jaxpr_flops(jax.make_jaxpr(step)(one, r.attack, r.defenses).jaxpr)
+    xla = jax.jit(step).lower(one, r.attack, r.defenses).cost_analysis()  # HLO, not compiled
+    xla = xla[0] if isinstance(xla, list) else xla
+    return {
+        "config": config,
+        "attack": attack_name,
+        "fn": lambda s: compiled(s, r.attack, r.defenses),
+        "states": states,
+        "compile_s": compile_s,
+        "flops": dots + other,
+        "matmul_flops": dots,
+        "xla_flops_loops_once": float(xla.get("flops", 0.0)) if xla else None,
+    }
+
+
+def time_interleaved(cases: list[dict], repeats: int) -> None:
+    """Warm-up, then `repeats` rounds calling every case once in turn (shared-machine noise
+    hits the cases alike); stores the per-call times in each case."""
+    import jax
+
+    for case in cases:
+        case["states"], _ = jax.block_until_ready(case["fn"](case["states"]))
+        case["call_s"] = []
+    for _ in range(repeats):
+        for case in cases:
+            t = time.perf_counter()
+            case["states"], metrics = jax.block_until_ready(case["fn"](case["states"]))
+            case["call_s"].append(time.perf_counter() - t)
+
+
+def lio_report(args: argparse.Namespace) -> int:
+    """Prints the LIO per-iteration report (see `--lio-report`)."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    import jax
+
+    jax.config.update("jax_enable_compilation_cache", False)
+    seeds, iterations = args.report_seeds, args.report_iterations
+    peak, peak_desc = core_peak()
+    wanted = [(c, None) for c in REPORT_CONFIGS] + [(c, "admo") for c in RATIO_CONFIGS]
+    cases = []
+    for config, attack in wanted:
+        print(
+            f"  compiling {config_label(config)} {attack or 'clean'} …", file=sys.stderr, flush=True
+        )
+        cases.append(update_case(config, attack, seeds, iterations))
+    time_interleaved(cases, args.repeats)
+    for case in cases:
+        case["iter_s"] = statistics.median(case["call_s"]) / iterations
+        case["seed_it_s"] = seeds / case["iter_s"]
+    clean = {c["config"]: c for c in cases if c["attack"] is None}
+    admo = {c["config"]: c for c in cases if c["attack"] == "admo"}
+    print(
+        f"\nLIO on {ENV_ID}: {seeds} seeds, {iterations} iterations per call, median of "
+        f"{args.repeats} interleaved calls, {cores} core(s) in this process's affinity, "
+        f"jax {jax.__version__} {jax.default_backend()}"
+    )
+    print("\nADMO vs clean iteration time (target ≤ ×1.3)")
+    print(f"{'config':<8} {'clean ms/it':>12} {'ADMO ms/it':>12} {'ratio':>7}")
+    for config in RATIO_CONFIGS:
+        c, a = clean[config], admo[config]
+        print(
+            f"{config_label(config):<8} {1e3 * c['iter_s']:>12.3f} {1e3 * a['iter_s']:>12.3f} "
+            f"{a['iter_s'] / c['iter_s']:>6.2f}×"
+        )
+    print("\nClean LIO: throughput, cost growth with N, flops (per seed-iteration)")
+    header = f"{'config':<8} {'seed-it/s':>10} {'per core':>10} {'µs/seed-it':>11} {'MFLOP':>7}"
+    header += f" {'matmul %':>9} {'GFLOP/s':>8} {'% peak':>7} {'XLA MFLOP*':>11}"
+    print(header)
+    base = clean[REPORT_CONFIGS[0]]
+    for config in REPORT_CONFIGS:
+        c = clean[config]
+        rate = c["flops"] * c["seed_it_s"]
+        share = f"{100 * rate / (peak * cores):.1f}" if peak else "-"
+        xla = c["xla_flops_loops_once"]
+        print(
+            f"{config_label(config):<8} {c['seed_it_s']:>10,.0f} {c['seed_it_s'] / cores:>10,.0f} "
+            f"{1e6 / c['seed_it_s']:>11.2f} {c['flops'] / 1e6:>7.3f} "
+            f"{100 * c['matmul_flops'] / c['flops']:>8.0f}% {rate / 1e9:>8.2f} {share:>7} "
+            f"{(xla or 0) / 1e6:>11.3f}"
+        )
+    import math
+
+    print("\ncost growth: time per seed-iteration relative to ER(2,1) (exponent of N)")
+    for config in REPORT_CONFIGS[1:]:
+        n = parse_config(config)[0]
+        ratio = base["seed_it_s"] / clean[config]["seed_it_s"]
+        print(f"  {config_label(config)}: ×{ratio:.2f} (N^{math.log(ratio) / math.log(n / 2):.2f})")
+    print(
+        f"\npeak: {peak_desc}"
+        + (f" = {peak / 1e9:.1f} GFLOP/s per core" if peak else "")
+        + "; MFLOP from the jaxpr of one iteration (scan bodies × their length, 2·M·N·K per "
+        "matmul, one flop per element otherwise); XLA MFLOP* = XLA's cost_analysis() of one "
+        "iteration (lowered HLO), which counts each loop body (the rollout's steps) once"
+    )
+    return 0
+
+
 def positive_int(text: str) -> int:
     """argparse type: an integer ≥ 1."""
     try:
@@ -431,6 +642,18 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="run all cases in this process (faster; peak memory then accumulates across cases)",
     )
+    parser.add_argument(
+        "--lio-report",
+        action="store_true",
+        help="instead: LIO clean vs ADMO iteration time on ER(2,1), ER(4,3) with the ratio, "
+        "seed-iterations/s per core and cost growth over ER(2,1), ER(4,2), ER(4,3), ER(8,4), "
+        "flops and fraction of peak (pin it: taskset -c 0 python benchmarks/throughput.py "
+        "--lio-report)",
+    )
+    parser.add_argument("--report-seeds", type=positive_int, default=10, help="--lio-report seeds")
+    parser.add_argument(
+        "--report-iterations", type=positive_int, default=200, help="--lio-report iterations/call"
+    )
     parser.add_argument("--case", nargs=2, metavar=("CONFIG", "SEEDS"), help=argparse.SUPPRESS)
     return parser
 
@@ -446,6 +669,8 @@ def main(argv: list[str] | None = None) -> int:
     from pimbot import jax_setup
 
     jax_setup.use_all_cpu_cores()  # before anything imports jax (cases in this process use it)
+    if args.lio_report:
+        return lio_report(args)
     from pimbot.envs.core import InvalidParameter
     from pimbot.experiment.config import resolve
 

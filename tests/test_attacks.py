@@ -253,3 +253,55 @@ def test_admo_moves_only_the_adversarys_parameters_beyond_the_lio_step():
     moved = [not _policies_equal(new_state.incentive, state.incentive, i) for i in range(2)]
     assert all(moved)
     assert float(metrics["admo/skipped"]) == 0.0
+
+
+def test_admo_view_pullbacks_equal_jax_grad_through_the_modelled_updates():
+    """ADMO's second-order path, batched with the other givers' cotangents, equals jax.grad
+    of the recipients' log-probabilities on τ̂ w.r.t. η_a through their modelled updates;
+    the other givers' part read back equals their own pass; `emitted` is as emitted (on the
+    episode's valid steps)."""
+    cfg = dataclasses.replace(CFG, incentive_updates="own")  # the batched path for N = 3
+    attack = attacks.make("admo", 3, adversary=1)
+    eps = jnp.float32(0.3)
+
+    @jax.jit
+    def check(key):
+        k0, k1, k2, k3 = jax.random.split(key, 4)
+        state = lio.init(k0, ENV, cfg, attack)
+        give = lio.give_fn(IM, state.incentive, ENV.num_actions, cfg.incentive_max)
+        traj = rollout(ENV, k1, pg.act_fn(PM, state.policy, eps), give, attack)
+        new_policy = lio.recipient_update(ENV, cfg, state.policy, state.incentive, traj, eps)
+        new_traj = rollout(ENV, k2, pg.act_fn(PM, new_policy, eps), give, attack)
+        pullbacks = lio.recipient_pullbacks(
+            ENV, cfg, state.policy, state.incentive, traj, eps, new_traj
+        )
+        theirs = lio.giver_cotangents(ENV, cfg, new_traj)[jnp.array([0, 2])]
+        view, read_back = lio.adversary_view(
+            ENV, cfg, attack, state, pullbacks, new_policy, traj, new_traj, 0.0, eps, theirs
+        )
+        cotangents = jax.random.normal(k3, (2,) + new_traj.valid.shape + (3,))
+        got = view.meta_pullback(cotangents)
+        eta_a = jax.tree.map(lambda x: x[1], state.incentive)
+
+        def modelled(own, c):
+            eta = jax.tree.map(lambda x, o: x.at[1].set(o), state.incentive, own)
+            updated = lio.recipient_update(ENV, cfg, state.policy, eta, traj, eps)
+            return jnp.sum(lio.taken_log_probs(ENV, cfg, updated, new_traj) * c)
+
+        expected = jax.vmap(jax.grad(modelled), in_axes=(None, 0))(eta_a, cotangents)
+        own_pass = jax.vmap(pullbacks[1])(theirs)
+        valid = new_traj.valid[:, None, None]
+        return (
+            got,
+            expected,
+            read_back(),
+            own_pass,
+            view.emitted(eta_a) * valid,
+            new_traj.incentives,
+        )
+
+    got, expected, back, own_pass, emitted, given = check(jax.random.PRNGKey(3))
+    for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(expected), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(back), np.asarray(own_pass), rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(np.asarray(emitted), np.asarray(given), rtol=1e-5, atol=1e-6)

@@ -143,9 +143,11 @@ class ADMO(Attack):
     def init_state(self, key, num_agents, adversary: AgentParams) -> ADMOState:
         del key, num_agents
         zero = jnp.zeros((), jnp.float32)
+        omega, _ = ravel_pytree((adversary.policy, adversary.incentive))
+        theta, _ = ravel_pytree(adversary.policy)
         return ADMOState(
-            opt=self.optimizer().init((adversary.policy, adversary.incentive)),
-            theta_ref=adversary.policy,
+            opt=self.optimizer().init(omega),
+            theta_ref=theta,
             lambda_d=jnp.asarray(self.lambda_d, jnp.float32),
             bounds=jnp.full((2,), self.c_init, jnp.float32),
             variance_ema=zero,
@@ -160,8 +162,8 @@ class ADMO(Attack):
 
 @struct.dataclass
 class ADMOState:
-    opt: optax.OptState  # AdamW state over ω = (θ_a, η_a)
-    theta_ref: dict  # reference policy parameters
+    opt: optax.OptState  # AdamW state over the flat ω = (θ_a, η_a)
+    theta_ref: jax.Array  # flat reference policy parameters
     lambda_d: jax.Array  # λ_d in force
     bounds: jax.Array  # [2] c1, c2
     variance_ema: jax.Array
@@ -241,32 +243,28 @@ def update_bounds(attack: ADMO, state: ADMOState, received_var, success, iterati
     )
 
 
-def weighted_step(attack: ADMO, state: ADMOState, flat_inc, flat_pol, unravel, params):
-    """KKT weights α, then one clipped AdamW step on `params` along α·(g_inc, g_pol).
+def weighted_step(attack: ADMO, state: ADMOState, flat_inc, flat_pol, omega):
+    """KKT weights α, then one clipped AdamW step on the flat ω along α·(g_inc, g_pol).
 
     A zero combined gradient leaves parameters and optimizer state unchanged.
-    Returns (α, whether the step was skipped, new params, new optimizer state).
+    Returns (α, whether the step was skipped, new ω, new optimizer state).
     """
     alpha = kkt_weights(flat_inc, flat_pol, state.bounds)
     combined = alpha[0] * flat_inc + alpha[1] * flat_pol
     norm = jnp.linalg.norm(combined)
     skip = norm == 0
     combined = combined * jnp.minimum(1.0, attack.clip_norm / jnp.where(skip, 1.0, norm))
-    updates, opt = attack.optimizer().update(unravel(combined), state.opt, params)
-    stepped = optax.apply_updates(params, updates)
-    stepped = jax.tree.map(lambda new, old: jnp.where(skip, old, new), stepped, params)
+    updates, opt = attack.optimizer().update(combined, state.opt, omega)
+    stepped = jnp.where(skip, omega, optax.apply_updates(omega, updates))
     opt = jax.tree.map(lambda new, old: jnp.where(skip, old, new), opt, state.opt)
     return alpha, skip, stepped, opt
 
 
-def refresh_reference(attack: ADMO, state: ADMOState, theta_new, iteration):
-    """Every K_ref iterations θ_ref ← θ, and λ_d follows the drift rule; (θ_ref, λ_d)."""
+def refresh_reference(attack: ADMO, state: ADMOState, theta_new: jax.Array, iteration):
+    """Every K_ref iterations θ_ref ← θ (flat), and λ_d follows the drift rule; (θ_ref, λ_d)."""
     refresh = (iteration + 1) % attack.ref_period == 0
-    drift = 0.5 * sum(
-        jnp.sum((p - r) ** 2)
-        for p, r in zip(jax.tree.leaves(theta_new), jax.tree.leaves(state.theta_ref), strict=True)
-    )
-    theta_ref = jax.tree.map(lambda p, r: jnp.where(refresh, p, r), theta_new, state.theta_ref)
+    drift = 0.5 * jnp.sum((theta_new - state.theta_ref) ** 2)
+    theta_ref = jnp.where(refresh, theta_new, state.theta_ref)
     lambda_d = jnp.where(
         refresh,
         jnp.where(drift > attack.drift_threshold, attack.lambda_d_drift, attack.lambda_d),
@@ -335,8 +333,8 @@ def step(attack: ADMO, state: ADMOState, view: AdversaryView):
         margin = rewards[..., a] - (rewards * others).sum(axis=-1) / (n - 1)
         return margin, rewards.sum(axis=-1)
 
-    def direct_losses(eta_all):
-        given = view.emitted(eta_all) * view.valid[..., None, None]
+    def direct_losses(eta_adversary):
+        given = view.emitted(eta_adversary) * view.valid[..., None, None]
         margin, team = objectives(view.env_rewards + received(given))
         spent = given[..., a, :].sum(axis=-1)
         loss_inc = -jnp.sum(discount * margin) + attack.beta_budget * jnp.sum(discount * spent)
@@ -344,7 +342,7 @@ def step(attack: ADMO, state: ADMOState, view: AdversaryView):
         return jnp.stack([loss_inc, loss_pol]) / episodes, (margin, team)
 
     if channel:
-        losses, pull_direct, (margin, team) = jax.vjp(direct_losses, view.incentive, has_aux=True)
+        losses, pull_direct, (margin, team) = jax.vjp(direct_losses, eta_a, has_aux=True)
     else:
         margin, team = objectives(view.env_rewards)
         losses = jnp.stack([-jnp.sum(discount * margin), -attack.sign * jnp.sum(discount * team)])
@@ -362,26 +360,29 @@ def step(attack: ADMO, state: ADMOState, view: AdversaryView):
     def theta_surrogate(theta_adv, weights):
         return -jnp.sum(view.log_probs(theta_adv) * weights) / episodes
 
+    theta_flat, _ = ravel_pytree(theta_a)
     theta_grads = jax.vmap(jax.grad(theta_surrogate), in_axes=(None, 0))(theta_a, to_go)
-    drift = jax.tree.map(lambda p, r: p - r, theta_a, state.theta_ref)
-    theta_grads = jax.tree.map(lambda g, d: g.at[1].add(state.lambda_d * d), theta_grads, drift)
+    grads = [jax.vmap(lambda g: ravel_pytree(g)[0])(theta_grads)]  # [2, |θ_a|]
+    drift = theta_flat - state.theta_ref
+    grads[0] = grads[0].at[1].add(state.lambda_d * drift)
 
-    eta_grads: dict = {}
     if channel:
         # η_a: through the recipients' updates (as LIO), plus the direct dependence.
         cotangents = -to_go[..., None] * others  # [2, T, N]
-        eta_score = jax.vmap(view.meta_pullback)(cotangents)
+        eta_score = view.meta_pullback(cotangents)  # one batched pass, [2, ...]
         (eta_direct,) = jax.vmap(pull_direct)(jnp.eye(2))
-        eta_grads = jax.tree.map(lambda s, d: (s + d)[:, a], eta_score, eta_direct)
+        eta_grads = jax.tree.map(lambda s, d: s + d, eta_score, eta_direct)
+        grads.append(jax.vmap(lambda g: ravel_pytree(g)[0])(eta_grads))  # [2, |η_a|]
 
-    first = lambda tree, k: jax.tree.map(lambda g: g[k], tree)  # noqa: E731
-    flat_inc, unravel = ravel_pytree((first(theta_grads, 0), first(eta_grads, 0)))
-    flat_pol, _ = ravel_pytree((first(theta_grads, 1), first(eta_grads, 1)))
-    alpha, skip, (theta_new, eta_new), opt = weighted_step(
-        attack, state, flat_inc, flat_pol, unravel, (theta_a, eta_a)
+    flat = jnp.concatenate(grads, axis=1)  # [2, |ω|]: rows g_inc, g_pol
+    flat_inc, flat_pol = flat[0], flat[1]
+    omega, unravel = ravel_pytree((theta_a, eta_a))
+    alpha, skip, omega_new, opt = weighted_step(attack, state, flat_inc, flat_pol, omega)
+    theta_new, eta_new = unravel(omega_new)
+    d_proxy = 0.5 * jnp.sum(drift**2)
+    theta_ref, lambda_d = refresh_reference(
+        attack, state, omega_new[: theta_flat.size], view.iteration
     )
-    d_proxy = 0.5 * sum(jnp.sum(d**2) for d in jax.tree.leaves(drift))
-    theta_ref, lambda_d = refresh_reference(attack, state, theta_new, view.iteration)
 
     received_var = masked_variance(view.received, view.received_valid.astype(jnp.float32))
     new_state = update_bounds(

@@ -86,12 +86,16 @@ class AdversaryView:
     valid: jax.Array
     """bool [B..., T]."""
     emitted: Callable[[Any], jax.Array] | None
-    """η (stacked) -> [B..., T, N, N] incentives emitted on the judged batch, as emitted
-    (differentiable in η); None without an incentive channel."""
+    """η_a (the adversary's own incentive parameters) -> [B..., T, N, N] incentives emitted
+    on the judged batch, as emitted: the adversary's row recomputed from η_a
+    (differentiable), the other givers' as they gave them; None without an incentive
+    channel."""
     meta_pullback: Callable[[jax.Array], Any] | None
-    """Cotangent on the recipients' log-probabilities [T, N] on the judged batch -> its
-    gradient w.r.t. η (stacked) through the recipients' updates from the incentives the
-    adversary gave (LIO's second-order path); None where the learner has none."""
+    """Cotangents [K, T, N] on the recipients' log-probabilities on the judged batch ->
+    [K, ...] their gradients w.r.t. η_a through the recipients' updates from the incentives
+    the adversary gave (LIO's second-order path). Batched over K: call it once, not under
+    vmap (the learner may pull its own givers' cotangents back in the same pass); None
+    where the learner has none."""
     received: jax.Array
     """[B'..., T] the signal the adversary received per step (incentives, or the
     influence others exert on it), on the batch it learnt from."""

@@ -329,14 +329,18 @@ def meta_gradients(env, cfg, policy, incentive, traj, epsilon, new_traj):
     return meta_gradients_from(env, cfg, pullbacks, traj, new_traj)
 
 
-def meta_gradients_from(env, cfg, pullbacks, traj, new_traj):
-    """`meta_gradients` from already computed `recipient_pullbacks` (shared with ADMO)."""
-    n = env.num_agents
-    pull_incentives, pull_recipients = pullbacks
-    # J_i = Σ_t Σ_{j≠i} log π_θ̂j(â_t^j) · Ĝ_t^{i,env}: cotangent of giver i on the log-probs.
+def giver_cotangents(env, cfg, new_traj) -> jax.Array:
+    """[giver, T, recipient]: giver i's surrogate J_i = Σ_t Σ_{j≠i} log π_θ̂j(â_t^j)·Ĝ_t^{i,env}
+    as a cotangent on the recipients' log-probabilities on τ̂."""
     env_returns = discounted_returns(new_traj.env_rewards, cfg.gamma) * new_traj.valid[:, None]
-    others = 1.0 - jnp.eye(n)
-    cotangents = env_returns.T[:, :, None] * others[:, None, :]  # [giver, T, recipient]
+    others = 1.0 - jnp.eye(env.num_agents)
+    return env_returns.T[:, :, None] * others[:, None, :]
+
+
+def meta_gradients_from(env, cfg, pullbacks, traj, new_traj):
+    """`meta_gradients` from already computed `recipient_pullbacks`."""
+    pull_incentives, pull_recipients = pullbacks
+    cotangents = giver_cotangents(env, cfg, new_traj)  # [giver, T, recipient]
     d_received = jax.vmap(pull_recipients)(cotangents)  # dJ_i / d received_j(t)
     # Giver k's own objective only, on its own row u[t, k, :].
     return pull_incentives(jnp.swapaxes(d_received, 0, 1))
@@ -369,6 +373,34 @@ def giver_cost(own_incentive, giver, env, cfg, traj: Trajectory) -> jax.Array:
     out = out * (1.0 - jax.nn.one_hot(giver, env.num_agents))
     discount = cfg.gamma ** jnp.arange(traj.valid.shape[0]) * traj.valid
     return jnp.sum(discount[:, None] * out)
+
+
+def other_givers_gradients(env, cfg, givers, incentive, traj, d_received):
+    """(meta, cost) gradients [N, ...] of the givers `givers` (all but a learning attack's
+    adversary, whose rows are zero), in one backward pass through the incentive nets.
+
+    Args:
+        d_received: [G, T, N] each giver's surrogate pulled back to the incentives every
+            recipient received on τ (the recipients' part of the second-order path).
+    """
+    _, incentive_module = _modules(env, cfg)
+    n = env.num_agents
+    _, pull = jax.vjp(
+        lambda eta: sigmoid_outputs(incentive_module, eta, traj.obs, traj.actions, env.num_actions),
+        incentive,
+    )
+    taking = jnp.zeros((n,)).at[jnp.array(givers)].set(1.0)  # [giver]
+    rows = jnp.zeros((n,) + d_received.shape[1:]).at[jnp.array(givers)].set(d_received)
+    emitted_scale = cfg.incentive_max * traj.incentive_scale  # d emitted / d sigmoid output
+    discount = cfg.gamma ** jnp.arange(traj.valid.shape[0]) * traj.valid
+    cotangents = jnp.stack(
+        [
+            jnp.swapaxes(rows, 0, 1) * emitted_scale,  # [T, giver, recipient]
+            discount[:, None, None] * taking[None, :, None] * jnp.ones((1, 1, n)),
+        ]
+    )
+    (grads,) = jax.vmap(pull)(cotangents)
+    return jax.tree.map(lambda g: g[0], grads), jax.tree.map(lambda g: g[1], grads)
 
 
 def giver_turns(env, cfg, givers, frozen, policy, incentive, opts, traj, epsilon, new_traj):
@@ -502,11 +534,19 @@ def update(
     env_steps = env_steps + new_traj.valid.sum()
 
     # 5. every giver's meta-gradient step on η through the recipients' updates, and the
-    #    separate cost step
+    #    separate cost step; a learning attack replaces the adversary's (attack hook:
+    #    adversary_step), its pullbacks batched with the other givers' where they are
+    #    taken at the same point
     learning_attack = "adversary_step" in attack.hooks
-    pullbacks = None
-    if one_by_one(cfg, env.num_agents):
-        a = attack.adversary
+    a = attack.adversary
+    success = episode_metrics(env, traj)["success"]
+    sequential = one_by_one(cfg, env.num_agents)
+    if learning_attack or not sequential:
+        pullbacks = recipient_pullbacks(
+            env, cfg, state.policy, state.incentive, traj, epsilon, new_traj
+        )
+    attack_state, attack_metrics = state.attack_state, {}
+    if sequential:
         givers = [i for i in range(env.num_agents) if not (learning_attack and i == a)]
         incentive, (incentive_opt, cost_opt) = giver_turns(
             env,
@@ -521,30 +561,25 @@ def update(
             new_traj,
         )
         if learning_attack:
-            pullbacks = recipient_pullbacks(
-                env, cfg, state.policy, state.incentive, traj, epsilon, new_traj
+            view, _ = adversary_view(
+                env,
+                cfg,
+                attack,
+                state,
+                pullbacks,
+                new_policy,
+                traj,
+                new_traj,
+                success,
+                schedule_epsilon,  # the adversary runs no defense: its ε is the schedule's
+                None,
             )
-    else:
-        pullbacks = recipient_pullbacks(
-            env, cfg, state.policy, state.incentive, traj, epsilon, new_traj
-        )
-        meta_grad = meta_gradients_from(env, cfg, pullbacks, traj, new_traj)
-        incentive, incentive_opt = meta_step(cfg, state.incentive, state.incentive_opt, meta_grad)
-        cost_opt = state.cost_opt
-        if cfg.lr_cost > 0:
-            cost_grad = jax.grad(incentive_cost)(state.incentive, env, cfg, traj)
-            cost_updates, cost_opt = optax.adam(cfg.lr_cost).update(cost_grad, state.cost_opt)
-            incentive = optax.apply_updates(incentive, cost_updates)
-
-    success = episode_metrics(env, traj)["success"]
-    metrics = {"train/epsilon": schedule_epsilon, "train/success": success}
-    metrics.update(defense_metrics)
-    metrics.update(monitor_metrics)
-
-    # 6. a learning attack replaces the adversary's update (attack hook: adversary_step)
-    attack_state = state.attack_state
-    if learning_attack:
-        view = adversary_view(
+            own, attack_state, attack_metrics = attack.adversary_step(
+                attack_state, attack_key(state.key), view
+            )
+    elif learning_attack:
+        givers = [i for i in range(env.num_agents) if i != a]
+        view, read_back = adversary_view(
             env,
             cfg,
             attack,
@@ -554,15 +589,38 @@ def update(
             traj,
             new_traj,
             success,
-            schedule_epsilon,  # the adversary runs no defense: its ε is the schedule's
+            schedule_epsilon,
+            giver_cotangents(env, cfg, new_traj)[jnp.array(givers)],
         )
         own, attack_state, attack_metrics = attack.adversary_step(
             attack_state, attack_key(state.key), view
         )
-        new_policy = with_agent_row(new_policy, attack.adversary, own.policy)
-        incentive = with_agent_row(incentive, attack.adversary, own.incentive)
-        metrics.update(attack_metrics)
-    # 7. the attack's own state (attack hook: observe)
+        d_received = read_back()  # [giver ≠ a, T, N], from the attack's pass (or its own)
+        meta_grad, cost_grad = other_givers_gradients(
+            env, cfg, givers, state.incentive, traj, d_received
+        )
+        incentive, incentive_opt = meta_step(cfg, state.incentive, state.incentive_opt, meta_grad)
+        cost_opt = state.cost_opt
+        if cfg.lr_cost > 0:
+            cost_updates, cost_opt = optax.adam(cfg.lr_cost).update(cost_grad, state.cost_opt)
+            incentive = optax.apply_updates(incentive, cost_updates)
+    else:
+        meta_grad = meta_gradients_from(env, cfg, pullbacks, traj, new_traj)
+        incentive, incentive_opt = meta_step(cfg, state.incentive, state.incentive_opt, meta_grad)
+        cost_opt = state.cost_opt
+        if cfg.lr_cost > 0:
+            cost_grad = jax.grad(incentive_cost)(state.incentive, env, cfg, traj)
+            cost_updates, cost_opt = optax.adam(cfg.lr_cost).update(cost_grad, state.cost_opt)
+            incentive = optax.apply_updates(incentive, cost_updates)
+    if learning_attack:
+        new_policy = with_agent_row(new_policy, a, own.policy)
+        incentive = with_agent_row(incentive, a, own.incentive)
+
+    metrics = {"train/epsilon": schedule_epsilon, "train/success": success}
+    metrics.update(defense_metrics)
+    metrics.update(monitor_metrics)
+    metrics.update(attack_metrics)
+    # 6. the attack's own state (attack hook: observe)
     attack_state = attack.observe(
         attack_state, attack_key(key_first), Outcome(success, state.iteration, env_steps)
     )
@@ -582,13 +640,24 @@ def update(
 
 
 def adversary_view(
-    env, cfg, attack, state, pullbacks, new_policy, traj, new_traj, success, epsilon
+    env, cfg, attack, state, pullbacks, new_policy, traj, new_traj, success, epsilon, batched
 ):
-    """What a learning attack sees of this iteration: τ̂ judged, τ learnt from."""
-    policy_module, _ = _modules(env, cfg)
+    """What a learning attack sees of this iteration: τ̂ judged, τ learnt from.
+
+    Its `meta_pullback` goes through the recipients' modelled updates (at θ, η of the
+    iteration's start) and then through the adversary's own incentive net only; its
+    `emitted` recomputes only the adversary's row from η_a. `batched`: other givers'
+    cotangents [K', T, N] to pull back through the recipients in the same pass as the
+    attack's, or None.
+
+    Returns:
+        (view, read_back): read_back() gives the pulled-back `batched` cotangents
+        [K', T, N] — from the attack's pass when it made one, else from a pass of their own.
+    """
+    policy_module, incentive_module = _modules(env, cfg)
     a = attack.adversary
-    pull_incentives, pull_recipients = pullbacks
-    own_row = jax.nn.one_hot(a, env.num_agents)[None, :, None]  # only a's own incentives
+    _, pull_recipients = pullbacks
+    pulled: list[jax.Array] = []
 
     def log_probs(theta_a):
         logits = policy_module.apply(theta_a, new_traj.obs[:, a])
@@ -596,16 +665,38 @@ def adversary_view(
         taken = jnp.take_along_axis(log_probs, new_traj.actions[:, a, None], axis=1)[:, 0]
         return taken * new_traj.valid
 
-    def meta_pullback(cotangent):
-        return pull_incentives(pull_recipients(cotangent)[:, None, :] * own_row)
+    def own_row(eta_a, t: Trajectory):
+        """The adversary's emitted incentives [T, N] on `t` as a function of η_a."""
+        x = incentive_input(t.obs, t.actions, env.num_actions)[:, a]
+        out = jax.nn.sigmoid(incentive_module.apply(eta_a, x)) * (1.0 - jnp.eye(env.num_agents)[a])
+        return cfg.incentive_max * out * t.incentive_scale[:, a] + t.incentive_offset[:, a]
 
-    return AdversaryView(
+    def emitted_hat(eta_a):  # the other givers' rows as they gave them on τ̂
+        return new_traj.incentives.at[:, a].set(own_row(eta_a, new_traj))
+
+    eta_a = agent_row(state.incentive, a)
+    _, pull_own = jax.vjp(lambda eta: own_row(eta, traj), eta_a)
+
+    def meta_pullback(cotangents):
+        k = cotangents.shape[0]
+        if batched is not None and not pulled:
+            both = jax.vmap(pull_recipients)(jnp.concatenate([cotangents, batched]))
+            pulled.append(both[k:])
+            d_received = both[:k]
+        else:
+            d_received = jax.vmap(pull_recipients)(cotangents)
+        return jax.vmap(lambda c: pull_own(c)[0])(d_received)
+
+    def read_back():
+        return pulled[0] if pulled else jax.vmap(pull_recipients)(batched)
+
+    view = AdversaryView(
         policy=new_policy,  # the adversary's row is unchanged: its policy sign is 0
         incentive=state.incentive,
         log_probs=log_probs,
         env_rewards=new_traj.env_rewards,
         valid=new_traj.valid,
-        emitted=lambda eta: emitted(env, cfg, eta, new_traj),
+        emitted=emitted_hat,
         meta_pullback=meta_pullback,
         received=received(traj.incentives)[:, a],
         received_valid=traj.valid,
@@ -614,6 +705,7 @@ def adversary_view(
         gamma=cfg.gamma,
         iteration=state.iteration,
     )
+    return view, read_back
 
 
 def acting(env: Env, cfg: LIOConfig, state: LIOState) -> Actor:
