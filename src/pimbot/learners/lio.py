@@ -16,7 +16,7 @@ Attacks and defenses are consulted at the hook points named in `update`.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -86,6 +86,13 @@ class LIOConfig:
     seeing what the previous givers moved). "own": each giver moves only its own η_i, all at
     once. The two are identical for N = 2 (giver i's surrogate then depends on no parameter
     another giver's step moves); they differ for N ≥ 3."""
+
+    RANGES: ClassVar[dict] = {
+        "gamma": (0.0, 1.0),
+        "epsilon_start": (0.0, 1.0),
+        "epsilon_end": (0.0, 1.0),
+    }
+    """Checked ranges (low, high) of the fields; the others are ≥ 0 (`check_fields`)."""
 
     def __post_init__(self):
         if self.incentive_updates not in INCENTIVE_UPDATES:
