@@ -220,7 +220,7 @@ def test_report_html_renders_every_figure_in_headless_chromium(reference, tmp_pa
 @pytest.mark.parametrize(
     "argv, expected",
     [
-        (["reproduce", "--backend", "slurm", "--out", "x"], "backend: unknown backend 'slurm'"),
+        (["reproduce", "--backend", "slurm", "--out", "x"], "backend: unknown value 'slurm'"),
         (["reproduce", "--only", "nothing/*", "--out", "x"], "only: no job matches nothing/*"),
         (["reproduce", "--ray-address", "auto", "--out", "x"], "ray_address: given without"),
         (["reproduce", "--workers", "-1", "--out", "x"], "workers: must be an integer ≥ 0"),

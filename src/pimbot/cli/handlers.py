@@ -250,6 +250,8 @@ def _run_suite(jobs, args, suite_name: str, loaded: tuple[str, ...]) -> int:
         f"{args.out}: {finished}/{total} jobs finished "
         f"({result.wall_s / 60:.1f} min this session); next: pimbot report {args.out}"
     )
+    if result.ran and result.programs and args.quiet:  # else the progress display shows it
+        print(f"{args.out}: {sweep.programs_line(result.programs)}")
     if result.failed:
         print(f"failed: {', '.join(result.failed)} (see {args.out}/index.json)", file=sys.stderr)
         return 1

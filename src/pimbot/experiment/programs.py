@@ -69,8 +69,11 @@ def program_key(resolved: ResolvedRun, periods: int, seeds: int, devices: int = 
 
 
 def shareable(attack: Attack) -> bool:
-    """Whether `attack` may be folded into `Strategies` (no learning step of its own)."""
-    return "adversary_step" not in attack.hooks
+    """Whether `attack` may be folded into `Strategies`: no learning step and no per-seed
+    state of its own (the members' states must share one structure; a stateful plugin
+    attack, e.g. one growing its incentive in `observe`, gets its own program)."""
+    stateless = type(attack).init_state is Attack.init_state and "observe" not in attack.hooks
+    return "adversary_step" not in attack.hooks and stateless
 
 
 def share_key(resolved: ResolvedRun, periods: int, seeds: int, devices: int = 1) -> str:

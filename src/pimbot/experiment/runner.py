@@ -46,19 +46,27 @@ class Diverged(RuntimeError):
     """A run produced a non-finite metric or parameter; its last finite checkpoint is kept."""
 
 
+OWN_STATES = (".attack_state", ".defense_state")
+"""State fields an attack or defense owns; they may hold non-finite sentinels (e.g. an
+empty history), so only the learner's own parameters and optimizer states are checked."""
+
+
 def first_non_finite(rows: list[dict[str, Any]], host_states) -> str | None:
     """Where a chunk first stops being finite: "iteration I, seed S: COLUMN = nan" (the
-    earliest evaluation row), or "the learner state: LEAF" when only a parameter is;
-    None when everything is finite."""
+    earliest evaluation row), or "the learner state: LEAF" when only a parameter or an
+    optimizer state is; None when everything is finite."""
     for row in sorted(rows, key=lambda r: (r["iteration"], r["seed"])):
         for column, value in row.items():
             if not column.startswith("perf/") and not math.isfinite(value):
                 return f"iteration {row['iteration']}, seed {row['seed']}: {column} = {value}"
     leaves = jax.tree_util.tree_leaves_with_path(host_states)
     for path, leaf in leaves:
+        where = jax.tree_util.keystr(path)
+        if where.startswith(OWN_STATES):  # an attack's or defense's own bookkeeping
+            continue
         leaf = np.asarray(leaf)
         if np.issubdtype(leaf.dtype, np.floating) and not np.isfinite(leaf).all():
-            return f"the learner state: {jax.tree_util.keystr(path)} is not finite"
+            return f"the learner state: {where} is not finite"
     return None
 
 
