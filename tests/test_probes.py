@@ -154,3 +154,38 @@ def test_a_listing_into_a_closed_pipe_ends_quietly():
     )
     os.close(write_end)
     assert listing.returncode == 1 and listing.stderr == "", listing.stderr
+
+
+NAME_VALUE = [  # the NAME=VALUE options: hyperparameters, attack and env parameters
+    ("--hp", "lr_policy=nan", "lr_policy: must be a finite number"),
+    ("--hp", "lr_policy=inf", "lr_policy: must be a finite number"),
+    ("--hp", "lr_policy=-1", "lr_policy: must be ≥ 0"),
+    ("--hp", "lr_policy=1e30", "lr_policy: must be ≥ 0 and ≤ 1e+06"),
+    ("--hp", "gamma=nan", "gamma: must be a finite number"),
+    ("--hp", "gamma=1.5", "gamma: must be ≥ 0 and ≤ 1"),
+    ("--hp", "incentive_max=-1", "incentive_max: must be ≥ 0"),
+    ("--hp", "epsilon_start=inf", "epsilon_start: must be a finite number"),
+    ("--hp", "policy_hidden=0", "policy_hidden[0]: must be an integer ≥ 1"),
+    ("--hp", "policy_hidden=64,x", "policy_hidden: must be a comma-separated list"),
+    ("--hp", "epsilon_decay_iters=-5", "epsilon_decay_iters: must be an integer ≥ 0"),
+    ("--hp", "incentive_updates=both", "incentive_updates: must be one of shared, own"),
+    ("--ap", "amount=1e30", "amount: must be ≥ -1e+06 and ≤ 1e+06"),
+    ("--ap", "amount=nan", "amount: must be a finite number"),
+    ("env", "n_agents=10000", "needs at least"),
+    ("env", "n_agents=-2", "n_agents"),
+]
+
+
+@pytest.mark.parametrize(("flag", "value", "expected"), NAME_VALUE, ids=lambda v: str(v))
+def test_bad_name_value_is_one_line_exit_2_nothing_written(tmp_path, capsys, flag, value, expected):
+    out = tmp_path / "out"
+    argv = ["train", "escape_room-v0", "--out", str(out)]
+    if flag == "env":
+        argv.insert(2, value)
+    else:
+        argv += [flag, value] + (["--attack", "fake_incentive"] if flag == "--ap" else [])
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("pimbot: error: ") and len(err.strip().splitlines()) == 1, err
+    assert expected in err, err
+    assert not out.exists()
