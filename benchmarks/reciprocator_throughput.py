@@ -37,6 +37,7 @@ jax_setup.use_all_cpu_cores()
 import jax  # noqa: E402
 
 from pimbot.experiment.config import RunConfig, resolve  # noqa: E402
+from pimbot.experiment.presets import SPEC_BALANCE  # noqa: E402
 from pimbot.experiment.runner import (  # noqa: E402
     init_states,
     make_chunk_fn,
@@ -45,13 +46,7 @@ from pimbot.experiment.runner import (  # noqa: E402
 )
 
 IPD32 = (("max_steps", 32),)
-LEARNED = (
-    ("voi", "learned"),
-    ("grudge", "accumulated"),
-    ("policy_hidden", (64, 64)),
-    ("voi_refit_period", 2),
-    ("voi_history", 3),
-)
+LEARNED = SPEC_BALANCE  # the spec's general agent: learned VoI, accumulated balance
 CONFIGS = {
     "ipd_matrix": ("ipd-v0", IPD32, ()),
     "ipd_learned": ("ipd-v0", IPD32, LEARNED + (("num_envs", 2048),)),

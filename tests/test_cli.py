@@ -1,11 +1,11 @@
 """The command line: bad input gives one clear line and exit 2 with nothing written."""
 
-import csv
 import json
 
 import pytest
 
 from pimbot import cli
+from pimbot.experiment import store
 
 BAD = [
     (["train", "nope-v0", "--out", "{d}"], "env_id: unknown value 'nope-v0'; allowed: escape"),
@@ -252,10 +252,10 @@ def test_bad_config_file_is_one_line(tmp_path, capsys, name, text, expected):
 
 def _results(run_dir):
     """metrics.csv without its timing columns (perf/*)."""
-    with open(run_dir / "metrics.csv") as f:
-        return [
-            {k: v for k, v in row.items() if not k.startswith("perf/")} for row in csv.DictReader(f)
-        ]
+    return [
+        {k: v for k, v in row.items() if not k.startswith("perf/")}
+        for row in store.read_metrics(run_dir)
+    ]
 
 
 def test_from_reruns_a_saved_run_elsewhere_or_continues_it(tmp_path, capsys):

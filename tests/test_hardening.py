@@ -16,6 +16,7 @@ from flax import struct
 
 from pimbot import cli
 from pimbot.attacks import Attack, register
+from pimbot.experiment import store
 
 TINY = ["--seeds", "2", "--iterations", "200", "--eval-period", "100", "--eval-episodes", "2"]
 TRAIN = ["train", "ipd-v0", *TINY, "--quiet"]
@@ -74,10 +75,10 @@ def test_divergence_stops_with_iteration_and_quantity_keeping_the_last_finite_ch
 
 def _results(run_dir) -> list[dict]:
     """metrics.csv without its timing columns (perf/*)."""
-    with open(run_dir / "metrics.csv") as f:
-        return [
-            {k: v for k, v in r.items() if not k.startswith("perf/")} for r in csv.DictReader(f)
-        ]
+    return [
+        {k: v for k, v in row.items() if not k.startswith("perf/")}
+        for row in store.read_metrics(run_dir)
+    ]
 
 
 def _train(out) -> None:

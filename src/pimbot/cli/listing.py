@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 
 from pimbot.contracts.docs import describe
+from pimbot.contracts.params import field_ranges
 
 
 def _first_line(obj) -> str:
@@ -22,19 +23,6 @@ def print_envs() -> int:
     return 0
 
 
-def hyperparameter_ranges(config) -> dict:
-    """name -> (low, high) the learner config is checked against (`check_fields`)."""
-    declared = getattr(type(config), "RANGES", {})
-    ranges = {}
-    for f in dataclasses.fields(config):
-        value = getattr(config, f.name)
-        if isinstance(value, bool) or not isinstance(value, int | float | tuple):
-            continue
-        default = (1, None) if isinstance(value, tuple) else (0, None)
-        ranges[f.name] = declared.get(f.name, default)
-    return ranges
-
-
 def print_learners() -> int:
     from pimbot import envs, learners
 
@@ -46,7 +34,7 @@ def print_learners() -> int:
         base = dataclasses.replace(definition.config_cls(), **dict(definition.base_overrides))
         values = {f.name: getattr(base, f.name) for f in dataclasses.fields(base)}
         print("    hyperparameters (--hp NAME=VALUE):")
-        ranges = hyperparameter_ranges(base)
+        ranges = field_ranges(base)
         print("\n".join(describe(definition.config_cls, values, "      ", ranges)))
         for env_id in envs.registered():
             declared = definition.default_config(envs.spec(env_id))

@@ -8,6 +8,8 @@ import functools
 import inspect
 import textwrap
 
+from pimbot.contracts.params import describe_range
+
 
 @functools.cache
 def _own_field_docs(cls: type) -> dict[str, str]:
@@ -38,13 +40,6 @@ def field_docs(cls: type) -> dict[str, str]:
     return docs
 
 
-def bounds_text(bounds: tuple) -> str:
-    low, high = bounds
-    if low is not None and high is not None:
-        return f"{low:g} … {high:g}"
-    return f"≥ {low:g}" if low is not None else f"≤ {high:g}"
-
-
 def describe(
     cls: type, values: dict, indent: str = "    ", ranges: dict | None = None
 ) -> list[str]:
@@ -54,7 +49,7 @@ def describe(
     lines = []
     for name, value in values.items():
         bounds = (ranges or {}).get(name)
-        allowed = f"  (allowed: {bounds_text(bounds)})" if bounds else ""
+        allowed = f"  (allowed: {describe_range(bounds)})" if bounds else ""
         lines.append(f"{indent}{name} = {value!r}{allowed}")
         if docs.get(name):
             lines += textwrap.wrap(

@@ -56,15 +56,30 @@ def describe_range(bounds: tuple[float | None, float | None]) -> str:
     return f"≤ {high:g}" if high is not None else ""
 
 
+def field_ranges(config: Any, default_low: float | None = 0.0) -> dict[str, tuple]:
+    """name -> (low, high) of every numeric field of a frozen config: its class's `RANGES`
+    where declared, else ≥ 1 for a tuple (layer widths) and ≥ `default_low` for a number
+    (hyperparameters are rates, weights and counts)."""
+    import dataclasses
+
+    declared = getattr(type(config), "RANGES", {})
+    ranges = {}
+    for field in dataclasses.fields(config):
+        value = getattr(config, field.name)
+        if not (is_number(value) or isinstance(value, tuple)):
+            continue
+        default = (1, None) if isinstance(value, tuple) else (default_low, None)
+        ranges[field.name] = declared.get(field.name, default)
+    return ranges
+
+
 def check_fields(config: Any, default_low: float | None = 0.0) -> None:
-    """Checks every field of a frozen config against its class's `RANGES`
-    (name -> (low, high); for a tuple field, each element) and, for any other number,
-    that it is finite, ≥ `default_low` (hyperparameters are rates, weights and counts)
-    and within ±`MAX_MAGNITUDE`; integers in a tuple (layer widths) default to ≥ 1.
+    """Checks every numeric field of a frozen config against `field_ranges` (for a tuple
+    field, each element), finite and within ±`MAX_MAGNITUDE` where no bound is declared.
     Raises InvalidParameter naming the field and its range."""
     import dataclasses
 
-    ranges = getattr(type(config), "RANGES", {})
+    ranges = field_ranges(config, default_low)
     for field in dataclasses.fields(config):
         value = getattr(config, field.name)
         items = value if isinstance(value, tuple) else (value,)
@@ -72,8 +87,7 @@ def check_fields(config: Any, default_low: float | None = 0.0) -> None:
             name = field.name if not isinstance(value, tuple) else f"{field.name}[{index}]"
             if not is_number(item):
                 continue
-            default = (1, None) if isinstance(value, tuple) else (default_low, None)
-            low, high = ranges.get(field.name, default)
+            low, high = ranges[field.name]
             if isinstance(item, int) and isinstance(field.default, int | tuple):
                 if low is not None and item < low or high is not None and item > high:
                     raise InvalidParameter(

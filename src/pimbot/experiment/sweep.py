@@ -142,7 +142,7 @@ def execute_job(
     path = job_dir(Path(suite_dir), job)
     path.parent.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    with open(path.parent / f".{path.name}.lock", "w") as lock:
+    with open(store.lock_path(path), "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # waits out a leftover worker of a killed sweep
         record = KINDS[job.kind].execute(path, job.spec, Path(suite_dir), options, shared)
     record["wall_s"] = time.perf_counter() - t0
