@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pimbot.analysis import document, plots, report, runs
+from pimbot.analysis import document, plots, report, runs, verdicts
 from pimbot.analysis.document import Claim, Section
 from pimbot.experiment import sweep
 
@@ -156,28 +156,36 @@ def test_one_colour_per_condition_in_every_figure(suite, built):
 
 def test_verdict_kinds_are_styled_and_marked(built):
     claims = [
-        Claim("C1", "a", "r", "m", "reproduced (quick budget)"),
+        Claim("C1", "a", "r", "m", verdicts.at_quick_budget(verdicts.reproduced())),
         Claim("C2", "b", "r", "long measured text", "not reproduced", summary="short"),
-        Claim("C3", "c", "r", "m", "inconclusive"),
-        Claim("C4", "d", "r", "m", "not run"),
+        Claim("C3", "c", "r", "m", verdicts.inconclusive("3 seeds")),
+        Claim("C4", "d", "r", "m", verdicts.not_run("0/1 runs finished")),
+        Claim("C5", "e", "r", "m", verdicts.refuted(verdicts.SPEC, "0.2 < 0.8")),
+        Claim("C6", "f", "r", "m", verdicts.at_budget("0.01 at 25k, 0.4 at 50k")),
     ]
     assert [document.verdict_kind(c.verdict) for c in claims] == [
         "reproduced",
-        "not-reproduced",
+        "refuted",  # a section's old two-word text: refuted, its cause unclassified
         "inconclusive",
         "not-run",
+        "refuted",
+        "reproduced-at-budget",
     ]
     provenance = Section("Provenance", tables=[])
     provenance.tables = [report.Table(["a"], [], "x"), report.Table(["a"], [], "y")]
     rendered = report.Report({"jobs": [{"claims": ["C1"], "status": "finished"}]},
                              provenance, claims, [])  # fmt: skip
     page = report.render_html(rendered, built)
-    for kind in ("reproduced", "not-reproduced", "inconclusive", "not-run"):
+    for kind in verdicts.KINDS:
         assert f"class='verdict {kind}'" in page
         assert f".{kind} {{" in page  # its own style
     markdown = report.render_markdown(rendered)
-    assert "**✔ reproduced (quick budget)**" in markdown and "**✘ not reproduced**" in markdown
-    assert "◐ inconclusive" in markdown and "○ not run" in markdown
+    assert "**✔ reproduced (quick budget)**" in markdown and "**✘ not reproduced** — " in markdown
+    assert "◐ inconclusive (too few seeds or iterations)** — 3 seeds" in markdown
+    assert "○ not run" in markdown
+    assert "**✘ refuted — cause: our spec** — 0.2 < 0.8" in markdown
+    assert "**✔ reproduced at the paper's budget** — 0.01 at 25k" in markdown
+    assert "<span class='reason'>0.2 &lt; 0.8</span>" in page
     # A compact measured cell; the full text below the table, linked.
     assert "| short ([details](#claim-c2)) |" in markdown
     assert '<a id="claim-c2"></a>**C2**: long measured text' in markdown

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from pimbot.analysis.runs import RunRecord, RunTable
 from pimbot.analysis.tables import Table
+from pimbot.analysis.verdicts import KINDS, MARKERS, Verdict, from_text
 from pimbot.experiment.summary import FINAL_WINDOW
 
 FIGURES = "figures"
@@ -35,6 +36,19 @@ class Figure:
         return slug(self.path.stem)
 
 
+@dataclasses.dataclass(frozen=True)
+class Comparison:
+    """One number of a claim as the paper states it, as the original code's logs give it and
+    as pimbot measures it, at one horizon (both logs read by the same metric code)."""
+
+    quantity: str
+    horizon: str
+    paper: str
+    original: str | None
+    """None: no original-code log covers it (written "no log")."""
+    pimbot: str | None
+
+
 @dataclasses.dataclass
 class Claim:
     id: str
@@ -42,9 +56,23 @@ class Claim:
     rule: str
     measured: str
     """Every number the verdict was judged on (the claims CSV and the details list)."""
-    verdict: str
+    verdict: Verdict | str
+    """A `Verdict`; plain text from a section that predates the vocabulary is read by
+    `verdicts.from_text`."""
     summary: str = ""
     """A short form of `measured` for the claims table (empty: `measured` is short)."""
+    numbers: list[Comparison] = dataclasses.field(default_factory=list)
+    """The paper | original code | pimbot rows of the claim."""
+    jobs_of: str = ""
+    """The suite claim whose jobs feed it ("C1" for C1a and C1b); empty: its id."""
+
+    @property
+    def judged(self) -> Verdict:
+        return self.verdict if isinstance(self.verdict, Verdict) else from_text(self.verdict)
+
+    @property
+    def suite_claim(self) -> str:
+        return self.jobs_of or self.id
 
 
 @dataclasses.dataclass
@@ -78,31 +106,25 @@ Provider = Callable[[RunTable, Context], Section | None]
 
 
 def verdict(ok: bool) -> str:
+    """The old two-word verdict, for a section not yet on `analysis.verdicts` (it reads as
+    refuted with its cause unclassified); new rules build a `Verdict`."""
     return "reproduced" if ok else "not reproduced"
 
 
-VERDICTS = {
-    "reproduced": "✔",
-    "not-reproduced": "✘",
-    "inconclusive": "◐",
-    "not-run": "○",
-}
+VERDICTS = {kind: MARKERS[kind] for kind in KINDS}
 """Verdict kind (its CSS class) -> the marker written before the verdict in Markdown and HTML."""
 
 
-def verdict_kind(text: str) -> str:
-    """The kind of a verdict text ("reproduced (quick budget)" -> "reproduced"), markers
-    ignored; a verdict in none of the kinds is "inconclusive"."""
-    text = text.lstrip("".join(VERDICTS.values()) + " ").lower()
-    for kind in ("not-run", "not-reproduced", "inconclusive", "reproduced"):
-        if text.startswith(kind.replace("-", " ")):
-            return kind
-    return "inconclusive"
+def verdict_kind(verdict: Verdict | str) -> str:
+    """The kind of a verdict (its CSS class); text is read by `verdicts.from_text`."""
+    return (verdict if isinstance(verdict, Verdict) else from_text(verdict)).kind
 
 
-def marked_verdict(text: str) -> str:
-    """The verdict with its kind's marker in front: "✘ not reproduced"."""
-    return f"{VERDICTS[verdict_kind(text)]} {text}"
+def marked_verdict(verdict: Verdict | str) -> str:
+    """The verdict's label with its kind's marker in front: "✘ refuted — cause: …"."""
+    judged = verdict if isinstance(verdict, Verdict) else from_text(verdict)
+    label = judged.label if isinstance(verdict, Verdict) else verdict
+    return f"{judged.marker} {label}"
 
 
 # --- counts read from the runs ----------------------------------------------------------

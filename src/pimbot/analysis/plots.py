@@ -1,4 +1,5 @@
-"""Figures from run directories: mean learning curves with 95 % bootstrap bands."""
+"""Figures from run directories: mean learning curves with their bands over seeds (95 % BCa
+bootstrap at ≥ 5 seeds, the min–max range below; analysis.statistics)."""
 
 from __future__ import annotations
 
@@ -18,16 +19,17 @@ RANDOM_POLICY = {
     "ER(2,1)": {"eval/success": 0.72, "eval/return_ratio": 0.38},
     "ER(4,2)": {"eval/success": 0.80, "eval/return_ratio": 0.17},
     "ER(4,3)": {"eval/success": 0.22, "eval/return_ratio": -1.38},
-    "SH(2)": {"eval/stag_captures": 0.067},
-    "SH(3)": {"eval/stag_captures": 0.003},
-    "SH(4)": {"eval/stag_captures": 1e-4},
+    "SH(2)": {"eval/stag_captures": 0.068},
+    "SH(3)": {"eval/stag_captures": 0.0028},
+    "SH(4)": {"eval/stag_captures": 1.2e-4},
 }
-"""A uniformly random team, simulated (spec/experiments.md, spec/environments.md), by env
-label."""
+"""A uniformly random team, simulated (spec/experiments.md; the Stag Hunt capture rates of
+the original rules as measured for issue 14: N hares, the stag moving before the capture
+check), by env label."""
 
 
 def band(ax, run_dir: Path, column: str, label=None, color=None, lw=1.2, style="-") -> None:
-    """One run's mean curve of `column` over seeds and its 95 % bootstrap band."""
+    """One run's mean curve of `column` over seeds and its band (`mean_and_band`)."""
     iterations, values = load_curve(run_dir, column)
     mean, lo, hi = mean_and_band(values)
     (line,) = ax.plot(iterations, mean, style, label=label, color=color, lw=lw)

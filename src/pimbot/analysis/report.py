@@ -27,6 +27,7 @@ from pathlib import Path
 
 import pimbot
 from pimbot.analysis import runs as run_table
+from pimbot.analysis import verdicts
 from pimbot.analysis.document import FIGURES as FIGURES
 from pimbot.analysis.document import (
     TABLES,
@@ -41,7 +42,6 @@ from pimbot.analysis.document import (
     marked_verdict,
     seeds_text,
     slug,
-    verdict_kind,
 )
 from pimbot.analysis.sections import attacks, defenses, device, generic, reciprocators, stag_hunt
 from pimbot.analysis.tables import Table, html_table, markdown_lines, write_csv
@@ -96,27 +96,39 @@ def is_paper_suite(index: dict) -> bool:
 
 
 def claims_table(sections: list[Section], index: dict) -> list[Claim]:
-    """C1–C8 in order; "not run" unless every job feeding the claim has finished. None
-    outside the paper's suite."""
+    """C1–C8 in order, each suite claim's rows as its section wrote them (C1a, C1b, …);
+    "not run" unless every job feeding the claim has finished; at the quick budget what
+    `verdicts.at_quick_budget` allows. None outside the paper's suite."""
     if not is_paper_suite(index):
         return []
-    measured = {claim.id: claim for section in sections for claim in section.claims}
+    measured: dict[str, list[Claim]] = {}
+    for claim in (c for section in sections for c in section.claims):
+        measured.setdefault(claim.suite_claim, []).append(claim)
     coverage = claim_coverage(index)
     quick = index.get("suite") == "quick"
     out = []
     for cid, text in CLAIM_TEXT.items():
         done, planned = coverage.get(cid, (0, 0))
-        claim = measured.get(cid)
-        if claim is None or planned == 0 or done < planned:
-            note = short = f"{done}/{planned} runs finished" if planned else "no runs planned"
-            if claim is not None:
-                note += f"; so far: {claim.measured}"
-            rule = claim.rule if claim else "–"
-            out.append(Claim(cid, text, rule, note, "not run", short))
+        mine = measured.get(cid, [])
+        if not mine or planned == 0 or done < planned:
+            short = f"{done}/{planned} runs finished" if planned else "no runs planned"
+            for claim in mine or [None]:
+                note = short + (f"; so far: {claim.measured}" if claim is not None else "")
+                out.append(
+                    Claim(
+                        claim.id if claim else cid,
+                        claim.claim if claim else text,
+                        claim.rule if claim else "–",
+                        note,
+                        verdicts.not_run(short),
+                        short,
+                        jobs_of=cid,
+                    )
+                )
             continue
-        if quick:
-            claim = dataclasses.replace(claim, verdict=f"{claim.verdict} (quick budget)")
-        out.append(claim)
+        for claim in mine:
+            judged = verdicts.at_quick_budget(claim.judged) if quick else claim.judged
+            out.append(dataclasses.replace(claim, verdict=judged))
     return out
 
 
@@ -128,12 +140,8 @@ PROVENANCE_FIELDS = (
     ("devices", "devices"),
 )
 """(row label, config.json key) of the provenance table: what every run records."""
-VERDICT_TEXT = {
-    "reproduced": "reproduced",
-    "not-reproduced": "not reproduced",
-    "inconclusive": "inconclusive",
-    "not-run": "not run (some of the claim's runs have not finished)",
-}
+VERDICT_TEXT = verdicts.LEGEND
+"""Verdict kind -> its line in the legend under the claims table."""
 
 
 @dataclasses.dataclass
@@ -285,6 +293,9 @@ def write_report(suite_dir: Path, out: Path) -> Path:
     (out / TABLES).mkdir(exist_ok=True)
     if report.claims:
         write_csv(_claims_as_table(report.claims), out / TABLES / "claims.csv")
+        numbers = comparison_table(report.claims)
+        if numbers is not None:
+            write_csv(numbers, out / TABLES / f"{numbers.name}.csv")
     everything = [report.provenance, *report.sections]
     names = csv_names(everything)
     for section in everything:
@@ -332,11 +343,33 @@ def _budget(report: Report) -> str:
 
 
 def _claims_as_table(claims: list[Claim]) -> Table:
-    """The claims CSV: every number judged, the verdict as plain text."""
+    """The claims CSV: every number judged, the verdict's label and its reason."""
     return Table(
-        ["claim", "published", "rule", "measured", "verdict"],
-        [[c.id, c.claim, c.rule, c.measured, c.verdict] for c in claims],
+        ["claim", "published", "rule", "measured", "verdict", "reason"],
+        [[c.id, c.claim, c.rule, c.measured, c.judged.label, c.judged.reason] for c in claims],
     )
+
+
+COMPARISON_NOTE = (
+    "Each number as the paper states it, as the original PIMbot code's log.csv files give it "
+    "(converted into run directories and read by the same metric code as pimbot's runs; "
+    "byte-identical copies counted once) and as pimbot measures it, at the same horizon. "
+    "'no log': the original code's logs do not cover it."
+)
+
+
+def comparison_table(claims: list[Claim]) -> Table | None:
+    """paper | original code | pimbot, one row per number a claim states; None if none."""
+    rows = [
+        [c.id, n.quantity, n.horizon, n.paper, "no log" if n.original is None else n.original]
+        + [n.pimbot]
+        for c in claims
+        for n in c.numbers
+    ]
+    if not rows:
+        return None
+    header = ["claim", "quantity", "horizon", "paper", "original code", "pimbot"]
+    return Table(header, rows, "Paper | original code | pimbot", COMPARISON_NOTE, "claims_numbers")
 
 
 def _details(claim: Claim) -> bool:
@@ -378,6 +411,9 @@ def _outline(report: Report) -> list[tuple[int, str, str]]:
         entries.append((2, table.title, anchors(table.title)))
     if report.claims:
         entries.append((1, "Claims", anchors("Claims")))
+        numbers = comparison_table(report.claims)
+        if numbers is not None:
+            entries.append((2, numbers.title, anchors(numbers.title)))
     for section in report.sections:
         entries.append((1, section.title, anchors(section.title)))
         entries += [(2, _figure_title(f), f.anchor) for f in section.figures]
@@ -428,10 +464,17 @@ def render_markdown(report: Report) -> str:
             measured = c.summary if _details(c) else c.measured
             if _details(c):
                 measured += f" ([details](#{_claim_anchor(c)}))"
-            rows.append([c.id, c.claim, c.rule, measured, f"**{marked_verdict(c.verdict)}**"])
+            verdict = f"**{marked_verdict(c.verdict)}**"
+            if c.judged.reason and c.judged.kind != verdicts.NOT_RUN:
+                verdict += f" — {c.judged.reason}"
+            rows.append([c.id, c.claim, c.rule, measured, verdict])
         header = ["claim", "published", "rule", "measured", "verdict"]
         lines += markdown_lines(Table(header, rows))
         lines += [_verdict_legend(), ""]
+        numbers = comparison_table(report.claims)
+        if numbers is not None:
+            lines.append(anchor(numbers.title))
+            lines += markdown_lines(numbers)
         details = [c for c in report.claims if _details(c)]
         if details:
             lines += ["Measured, in full:", ""]
@@ -457,7 +500,9 @@ table.claims td.measured { max-width: 24em; }
 td.verdict { font-weight: 600; min-width: 11em; }
 td.verdict .mark { display: inline-block; width: 1.2em; text-align: center; }
 .reproduced { background: #e3f4e6; color: #1b5e20; border-left: 5px solid #2e7d32; }
-.not-reproduced { background: #fde8e8; color: #a31515; border-left: 5px solid #c62828; }
+.reproduced-at-budget { background: #eef6e3; color: #33691e; border-left: 5px double #558b2f; }
+.refuted { background: #fde8e8; color: #a31515; border-left: 5px solid #c62828; }
+td.verdict .reason { font-weight: normal; font-size: 0.88em; }
 .inconclusive { background: #fff3dc; color: #7a4f00; border-left: 5px dashed #e09b00; }
 .not-run { background: #f0f0f0; color: #666; font-style: italic; border-left: 5px dotted #999; }
 p.legend { font-size: 0.85em; } p.legend span { margin-right: 0.8em; padding: 0.15em 0.5em; }
@@ -467,11 +512,14 @@ figcaption { font-size: 0.9em; color: #555; }
 """
 
 
-def _verdict_cell(verdict: str) -> str:
-    kind = verdict_kind(verdict)
+def _verdict_cell(claim: Claim) -> str:
+    judged = claim.judged
+    label = judged.label if isinstance(claim.verdict, verdicts.Verdict) else claim.verdict
+    reason = judged.reason if judged.kind != verdicts.NOT_RUN else ""
+    why = f"<br><span class='reason'>{html.escape(reason)}</span>" if reason else ""
     return (
-        f"<td class='verdict {kind}'><span class='mark'>{VERDICTS[kind]}</span> "
-        f"{html.escape(verdict)}</td>"
+        f"<td class='verdict {judged.kind}'><span class='mark'>{VERDICTS[judged.kind]}</span> "
+        f"{html.escape(label)}{why}</td>"
     )
 
 
@@ -485,7 +533,7 @@ def _claims_html(claims: list[Claim]) -> str:
         rows.append(
             f"<tr><td>{html.escape(c.id)}</td><td>{html.escape(c.claim)}</td>"
             f"<td class='rule'>{html.escape(c.rule)}</td><td class='measured'>{measured}</td>"
-            f"{_verdict_cell(c.verdict)}</tr>"
+            f"{_verdict_cell(c)}</tr>"
         )
     legend = "".join(
         f"<span class='{kind}'>{VERDICTS[kind]} {html.escape(text)}</span>"
@@ -553,6 +601,9 @@ def render_html(report: Report, out: Path) -> str:
     parts += section_html(report.provenance)
     if report.claims:
         parts += [f"<h2 id='{anchors['Claims'].pop(0)}'>Claims</h2>", _claims_html(report.claims)]
+        numbers = comparison_table(report.claims)
+        if numbers is not None:
+            parts.append(titled(numbers))
     for section in report.sections:
         parts += section_html(section)
     parts.append("</body></html>")

@@ -1,9 +1,11 @@
-"""Tables of results: estimates with 95 % CIs, their one formatter, Markdown, HTML and CSV.
+"""Tables of results: estimates with their intervals, their one formatter, Markdown, HTML, CSV.
 
 Every table of `pimbot report` and `pimbot table` is a `Table` of cells; a cell is
-text, a number, None (written "–") or an `Estimate` (a mean and its CI). The
-same table is written as Markdown, as HTML and as CSV (an estimate becomes
-three columns there: the value, its low and its high end, unrounded).
+text, a number, None (written "–") or an `Estimate` (a mean and its interval over
+seeds: a 95 % BCa bootstrap CI at ≥ 5 seeds, the min–max range below; see
+analysis.statistics). The same table is written as Markdown, as HTML and as CSV (an
+estimate becomes four columns there: the value, its low and high end, unrounded, and
+the interval's kind).
 """
 
 from __future__ import annotations
@@ -17,14 +19,16 @@ from typing import Any
 
 import numpy as np
 
-from pimbot.experiment.summary import bootstrap_ci, diff_ci
+from pimbot.analysis import statistics
 
 MISSING = "–"
+INTERVAL = "[interval]"
+"""Header suffix of an estimate column: a 95 % CI or, below 5 seeds, the range."""
 
 
 @dataclasses.dataclass(frozen=True)
 class Estimate:
-    """A mean (or a difference of means) and its 95 % bootstrap CI over seeds."""
+    """A mean (or a difference of means) and its interval over seeds."""
 
     mean: float
     lo: float
@@ -32,26 +36,35 @@ class Estimate:
     digits: int = 3
     signed: bool = False
     """Write every number with its sign (differences, margins)."""
+    kind: str = statistics.CI
+    """statistics.CI (95 % CI, written "m [lo, hi]") or statistics.RANGE (min–max over
+    seeds, written "m (range lo … hi)")."""
 
     def __str__(self) -> str:
         spec = f"{'+' if self.signed else ''}.{self.digits}f"
+        if self.kind == statistics.RANGE:
+            return f"{self.mean:{spec}} (range {self.lo:{spec}} … {self.hi:{spec}})"
         return f"{self.mean:{spec}} [{self.lo:{spec}}, {self.hi:{spec}}]"
 
 
 def estimate(samples: np.ndarray, digits: int = 3, signed: bool = False) -> Estimate | None:
-    """Mean of per-seed `samples` with its 95 % bootstrap CI; None without samples."""
+    """Mean of per-seed `samples` with its interval (statistics.mean_interval); None
+    without samples."""
     samples = np.asarray(samples, dtype=float)
     if samples.size == 0:
         return None
-    lo, hi = bootstrap_ci(samples)
-    return Estimate(float(samples.mean()), lo, hi, digits, signed)
+    interval = statistics.mean_interval(samples)
+    return Estimate(float(samples.mean()), interval.lo, interval.hi, digits, signed, interval.kind)
 
 
 def difference(a: np.ndarray, b: np.ndarray, digits: int = 3) -> Estimate | None:
-    """Mean of a − mean of b with its 95 % bootstrap CI (seeds resampled independently)."""
+    """Mean of a − mean of b with its interval (seeds resampled independently)."""
     if np.size(a) == 0 or np.size(b) == 0:
         return None
-    return Estimate(*diff_ci(np.asarray(a), np.asarray(b)), digits=digits, signed=True)
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    interval = statistics.difference_interval(a, b)
+    mean = float(a.mean() - b.mean())
+    return Estimate(mean, interval.lo, interval.hi, digits, True, interval.kind)
 
 
 def fmt(value: Any, digits: int = 3) -> str:
@@ -102,15 +115,16 @@ def html_table(table: Table, cell_class=None, level: int = 3) -> str:
 
 
 def write_csv(table: Table, path: Path) -> None:
-    """One CSV row per table row; an estimate column becomes `col`, `col lo`, `col hi`
-    (unrounded, the column's "[CI]" suffix dropped)."""
+    """One CSV row per table row; an estimate column becomes `col`, `col lo`, `col hi`,
+    `col interval` (unrounded; the interval's kind: ci or range; the column's "[…]"
+    suffix dropped)."""
     estimates = [
         any(isinstance(row[i], Estimate) for row in table.rows) for i in range(len(table.header))
     ]
     header: list[str] = []
     for name, is_estimate in zip(table.header, estimates, strict=True):
         base = re.sub(r"\s*\[[^\]]*\]$", "", name)  # "success [CI]" -> success, lo, hi
-        header += [base, f"{base} lo", f"{base} hi"] if is_estimate else [name]
+        header += [base, f"{base} lo", f"{base} hi", f"{base} interval"] if is_estimate else [name]
     with open(path, "w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(header)
@@ -120,9 +134,9 @@ def write_csv(table: Table, path: Path) -> None:
                 if not is_estimate:
                     out.append("" if cell is None else cell)
                 elif isinstance(cell, Estimate):
-                    out += [cell.mean, cell.lo, cell.hi]
+                    out += [cell.mean, cell.lo, cell.hi, cell.kind]
                 else:
-                    out += ["", "", ""]
+                    out += ["", "", "", ""]
             writer.writerow(out)
 
 
@@ -130,8 +144,9 @@ def write_csv(table: Table, path: Path) -> None:
 
 
 def _final(summary: dict, column: str) -> Estimate | None:
+    """The final value of `column` with its interval, from the per-seed finals."""
     entry = summary["final"].get(column)
-    return None if entry is None else Estimate(entry["mean"], *entry["ci95"])
+    return None if entry is None else estimate(np.array(entry["per_seed"]))
 
 
 def summary_table(run_dirs: list[Path]) -> str:
@@ -163,11 +178,12 @@ def summary_table(run_dirs: list[Path]) -> str:
         "run",
         "iterations",
         "seeds",
-        "final success [95 % CI]",
-        "final return ratio [95 % CI]",
+        f"final success {INTERVAL}",
+        f"final return ratio {INTERVAL}",
         "converged seeds",
         "convergence median [IQR]",
         "first crossing median",
         "it/s",
     ]
-    return "\n".join(markdown_lines(Table(header, rows))[:-1]) + "\n"
+    lines = markdown_lines(Table(header, rows))[:-1]
+    return "\n".join(lines + ["", statistics.interval_text(row[2] for row in rows)]) + "\n"

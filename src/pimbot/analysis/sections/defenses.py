@@ -13,12 +13,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from pimbot.analysis import plots
+from pimbot.analysis import plots, statistics
 from pimbot.analysis.document import Context, Section, count_text, iterations_text
 from pimbot.analysis.runs import CLEAN, NO_DEFENSE, RunRecord, RunTable, condition_key, natural_key
 from pimbot.analysis.tables import Table, estimate
 from pimbot.experiment import presets, store
-from pimbot.experiment.summary import bootstrap_ci, convergence_point, final_value
+from pimbot.experiment.summary import convergence_point, final_value
 
 GROUP = "defenses"
 TIMING = "iteration_time.json"
@@ -170,7 +170,8 @@ def metric_tables(cells: dict) -> list[Table]:
                 (len(c["seeds"]) for (e, _, _), c in cells.items() if e == env), "seeds"
             )
             heading = f"{title}: {env}, {iterations_text(iterations(cells, env))}, {seeds}"
-            note = f"Mean over {seeds} [95 % bootstrap CI]." if not out else ""
+            counts = (len(c["seeds"]) for c in cells.values())
+            note = f"Mean over {seeds}; {statistics.interval_text(counts)}." if not out else ""
             name = f"defenses_{metric}_{env}"
             out.append(Table(["attack", *sets], rows, heading, note, name))
     return out
@@ -258,7 +259,7 @@ def cost_table(cells: dict, timing: dict) -> Table:
 
 def plot(cells: dict, path, colors: dict) -> None:
     """Final success and adversary margin per defense set, one bar per attack in the
-    attack's colour (the report's one condition mapping), 95 % CIs."""
+    attack's colour (the report's one condition mapping), with their intervals."""
     envs, conditions, sets = axes(cells)
     fig, grid = plots.plt.subplots(2, len(envs), figsize=(5.2 * len(envs), 7.5), squeeze=False)
     width = 0.8 / len(conditions)
@@ -273,7 +274,8 @@ def plot(cells: dict, path, colors: dict) -> None:
                     c = cells.get((env, attack, d))
                     if c is None:
                         continue
-                    lo, hi = bootstrap_ci(c[metric])
+                    interval = statistics.mean_interval(c[metric])
+                    lo, hi = interval.lo, interval.hi
                     m = c[metric].mean()
                     xs.append(k + (a - (len(conditions) - 1) / 2) * width)
                     means.append(m)
@@ -293,7 +295,6 @@ def plot(cells: dict, path, colors: dict) -> None:
             ax.grid(axis="y", alpha=0.3)
     grid[0][0].legend(title="attack", fontsize=8)
     seeds = count_text((len(c["seeds"]) for c in cells.values()), "seeds")
-    fig.suptitle(
-        f"LIO under attack with each defense\nmean over {seeds}, 95 % bootstrap CI", fontsize=10
-    )
+    bars = statistics.interval_text(len(c["seeds"]) for c in cells.values())
+    fig.suptitle(f"LIO under attack with each defense\nmean over {seeds}; {bars}", fontsize=9)
     plots.save(fig, path, dpi=120)

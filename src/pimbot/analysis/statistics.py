@@ -1,0 +1,143 @@
+"""Intervals over seeds for the report: scipy's BCa bootstrap, or the range below 5 seeds.
+
+A mean over seeds is reported with a 95 % BCa bootstrap confidence interval
+(`scipy.stats.bootstrap`, method "BCa") when it rests on at least `MIN_SEEDS_FOR_CI`
+seeds; below that a bootstrap interval means little, so the range of the seeds
+(min to max) is printed instead, never called a CI. A difference of two runs' means
+resamples the two runs' seeds independently (different runs' seeds are not paired);
+below the threshold its range is the span of all pairwise differences.
+
+Samples whose values are all equal have a zero-width interval (BCa is undefined on
+degenerate data); where BCa cannot be computed on other data (its acceleration has no
+value) the percentile bootstrap of the same resamples is used.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+
+import numpy as np
+from scipy import stats
+
+MIN_SEEDS_FOR_CI = 5
+"""Below this many seeds an interval is the min–max range, not a confidence interval."""
+LEVEL = 0.95
+RESAMPLES = 9_999
+BAND_RESAMPLES = 999
+"""Resamples per evaluation point of a figure's band (one vectorized call per curve)."""
+CI = "ci"
+RANGE = "range"
+
+
+@dataclasses.dataclass(frozen=True)
+class Interval:
+    lo: float
+    hi: float
+    kind: str
+    """CI (95 % BCa bootstrap) or RANGE (min–max over seeds)."""
+    n: int
+    """Seeds it rests on (the smaller run's count for a difference)."""
+
+
+def _mean(x, axis=-1):
+    return np.mean(x, axis=axis)
+
+
+def _mean_difference(x, y, axis=-1):
+    return np.mean(x, axis=axis) - np.mean(y, axis=axis)
+
+
+def _bootstrap(samples: tuple[np.ndarray, ...], statistic, resamples: int, seed: int):
+    """(lo, hi) of scipy's BCa interval, the percentile interval where BCa has no value."""
+    for method in ("BCa", "percentile"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # degenerate-data and divide warnings: handled
+            result = stats.bootstrap(
+                samples,
+                statistic,
+                n_resamples=resamples,
+                confidence_level=LEVEL,
+                method=method,
+                vectorized=True,
+                rng=np.random.default_rng(seed),
+            )
+        lo, hi = float(result.confidence_interval.low), float(result.confidence_interval.high)
+        if np.isfinite(lo) and np.isfinite(hi):
+            return lo, hi
+    return float("nan"), float("nan")
+
+
+def mean_interval(samples, seed: int = 0) -> Interval:
+    """The interval of the mean of per-seed `samples` (at least one)."""
+    x = np.asarray(samples, dtype=float)
+    if x.size == 0:
+        raise ValueError("mean_interval: no samples")
+    if x.size < MIN_SEEDS_FOR_CI:
+        return Interval(float(x.min()), float(x.max()), RANGE, x.size)
+    if np.ptp(x) == 0:
+        return Interval(float(x[0]), float(x[0]), CI, x.size)
+    return Interval(*_bootstrap((x,), _mean, RESAMPLES, seed), CI, x.size)
+
+
+def difference_interval(a, b, seed: int = 0) -> Interval:
+    """The interval of mean(a) − mean(b), the two runs' seeds resampled independently."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    if a.size == 0 or b.size == 0:
+        raise ValueError("difference_interval: no samples")
+    n = min(a.size, b.size)
+    if n < MIN_SEEDS_FOR_CI:
+        return Interval(float(a.min() - b.max()), float(a.max() - b.min()), RANGE, n)
+    if np.ptp(a) == 0 and np.ptp(b) == 0:
+        d = float(a[0] - b[0])
+        return Interval(d, d, CI, n)
+    return Interval(*_bootstrap((a, b), _mean_difference, RESAMPLES, seed), CI, n)
+
+
+def band(values: np.ndarray, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+    """(mean, lo, hi, kind) per evaluation point of `values` [S, E]: the BCa band of the
+    mean at ≥ MIN_SEEDS_FOR_CI seeds, else the seeds' min–max. Points where every seed
+    agrees have zero width; NaNs (a seed without that point) are left out of the range."""
+    values = np.asarray(values, dtype=float)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns
+        mean = np.nanmean(values, axis=0)
+        if values.shape[0] < MIN_SEEDS_FOR_CI or np.isnan(values).any():
+            return mean, np.nanmin(values, axis=0), np.nanmax(values, axis=0), RANGE
+    lo, hi = mean.copy(), mean.copy()
+    varying = np.ptp(values, axis=0) > 0
+    if varying.any():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            result = stats.bootstrap(
+                (values[:, varying],),
+                _mean,
+                n_resamples=BAND_RESAMPLES,
+                confidence_level=LEVEL,
+                method="BCa",
+                axis=0,
+                vectorized=True,
+                rng=np.random.default_rng(seed),
+            )
+        low, high = result.confidence_interval.low, result.confidence_interval.high
+        # BCa without a value at a point (degenerate resamples): the seeds' range there.
+        low = np.where(np.isfinite(low), low, values[:, varying].min(axis=0))
+        high = np.where(np.isfinite(high), high, values[:, varying].max(axis=0))
+        lo[varying], hi[varying] = low, high
+    return mean, lo, hi, CI
+
+
+def interval_text(seed_counts) -> str:
+    """What the intervals of a table are, from the seed counts of its runs."""
+    counts = sorted(set(int(n) for n in seed_counts))
+    if not counts:
+        return "no seeds"
+    few = [n for n in counts if n < MIN_SEEDS_FOR_CI]
+    many = [n for n in counts if n >= MIN_SEEDS_FOR_CI]
+    ci = f"95 % BCa bootstrap CI over seeds (scipy.stats.bootstrap, {RESAMPLES} resamples)"
+    rng = "the range (min … max) over seeds, no CI"
+    if not few:
+        return f"[…] = {ci}"
+    if not many:
+        return f"(range …) = {rng}: fewer than {MIN_SEEDS_FOR_CI} seeds"
+    return f"[…] = {ci} for runs of ≥ {MIN_SEEDS_FOR_CI} seeds; (range …) = {rng} for runs of fewer"
