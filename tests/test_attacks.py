@@ -5,6 +5,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -305,3 +306,116 @@ def test_admo_view_pullbacks_equal_jax_grad_through_the_modelled_updates():
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-6)
     np.testing.assert_allclose(np.asarray(back), np.asarray(own_pass), rtol=1e-5, atol=1e-7)
     np.testing.assert_allclose(np.asarray(emitted), np.asarray(given), rtol=1e-5, atol=1e-6)
+
+
+# --- admo_code: the published code's scheduler of extra ordinary steps --------------------
+
+
+def _code_weights_reference(g_inc, g_pol, c):
+    """The code's own solve, in float64 numpy (the gram in float32, as there)."""
+    g = np.array([[g_inc, g_pol]], np.float32)
+    gram = g.T @ g
+    e = np.ones(2, np.float32)
+    m = np.block([[gram, e[:, None]], [e[None, :], np.zeros((1, 1))]])
+    rhs = np.concatenate([-gram @ c, [1 - np.dot(e, c)]])
+    raw = np.linalg.solve(m + 1e-6 * np.eye(3), rhs)[:2]
+    clipped = np.maximum(raw + c, c)
+    return clipped / clipped.sum()
+
+
+scalars = st.floats(-1.0, 1.0, allow_nan=False, width=32)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    g_inc=scalars,
+    g_pol=scalars,
+    c=st.tuples(st.floats(0.0, 0.45), st.floats(0.0, 0.45)),
+    tie=st.sampled_from([None, 1.0, -1.0, 0.0]),
+)
+def test_admo_code_weights_match_the_codes_regularised_solve(g_inc, g_pol, c, tie):
+    from pimbot.attacks.admo_code import code_weights
+
+    if tie is not None:  # equal, opposite and zero scalars: the unregularised M is singular
+        g_pol = tie * g_inc
+    c = np.array(c, np.float32)
+    got = np.asarray(code_weights(jnp.float32(g_inc), jnp.float32(g_pol), jnp.asarray(c)))
+    np.testing.assert_allclose(got, _code_weights_reference(g_inc, g_pol, c), atol=2e-4)
+    assert got.sum() == pytest.approx(1.0, abs=1e-6)
+
+
+def test_admo_code_weights_known_values():
+    from pimbot.attacks.admo_code import code_weights, scheduled_steps
+
+    c = jnp.array([0.1, 0.1])
+    for g in [(1.0, -1.0), (1.0, 1.0), (0.0, 0.0)]:  # symmetric cases: an even split
+        np.testing.assert_allclose(code_weights(*map(jnp.float32, g), c), [0.5, 0.5], atol=1e-5)
+    # g_pol = 0: the unconstrained optimum is α̂ = (−0.1, 0.9) (α1 = 0); the code lifts α̂1 + c1
+    # to c1 and renormalises (0.1, 1.0), so α1 ends below its bound: 1/11
+    alpha = code_weights(jnp.float32(1.0), jnp.float32(0.0), c)
+    np.testing.assert_allclose(alpha, [1 / 11, 10 / 11], atol=1e-5)
+    steps = scheduled_steps(jnp.array([0.1, 0.5, 0.9, 0.17]), 3)  # 0.3, 1.5, 2.7, 0.51
+    np.testing.assert_array_equal(steps, [1, 2, 3, 1])  # max(1, ·); 1.5 rounds to even
+
+
+def test_admo_code_doubles_the_adversarys_policy_step_only():
+    """The code's extra policy steps all restart from the same parameters: one takes
+    effect, so the adversary's actual step is twice the ordinary (modelled) one."""
+    attack = attacks.make("admo_code", 3, adversary=1)
+    state, _, _, actual, modelled = _actual_and_modelled(attack)
+    for x, y, p in zip(
+        *(jax.tree.leaves(t) for t in (actual, modelled, state.policy)), strict=True
+    ):
+        np.testing.assert_allclose(x[1] - p[1], 2 * (y[1] - p[1]), rtol=1e-3, atol=1e-7)
+        np.testing.assert_allclose(x[0], y[0], rtol=1e-5, atol=1e-7)
+
+
+def test_admo_code_takes_the_ordinary_incentive_step_then_the_scheduled_extra_ones():
+    """η_a after the attack's step = 1 + max(1, round(3·α1)) Adam steps along the giver's
+    own LIO meta-gradient (lr_cost 0), with that gradient equal to clean LIO's."""
+    from pimbot.attacks import admo_code
+
+    env = envs.make("escape_room-v0")
+    cfg = dataclasses.replace(learners.default_config("lio", "escape_room-v0"), lr_cost=0.0)
+    attack = attacks.make("admo_code", 2, adversary=0, lr_cost=0.0)
+    pm, im = lio._modules(env, cfg)
+    eps = jnp.float32(0.3)
+
+    @jax.jit
+    def check(key):
+        k0, k1, k2 = jax.random.split(key, 3)
+        state = lio.init(k0, env, cfg, attack)
+        give = lio.give_fn(im, state.incentive, env.num_actions, cfg.incentive_max)
+        traj = rollout(env, k1, pg.act_fn(pm, state.policy, eps), give, attack)
+        new_policy = lio.recipient_update(env, cfg, state.policy, state.incentive, traj, eps)
+        new_traj = rollout(env, k2, pg.act_fn(pm, new_policy, eps), give, attack)
+        pullbacks = lio.recipient_pullbacks(
+            env, cfg, state.policy, state.incentive, traj, eps, new_traj
+        )
+        view, _ = lio.adversary_view(
+            env, cfg, attack, state, pullbacks, new_policy, traj, new_traj, 0.0, eps, None
+        )
+        own, _, metrics = admo_code.step(attack, state.attack_state, view)
+        clean = lio.meta_gradients_from(env, cfg, pullbacks, traj, new_traj)
+        return own, metrics, jax.tree.map(lambda g: g[0], clean), state.incentive
+
+    own, metrics, clean_grad, incentive = check(jax.random.PRNGKey(5))
+    steps = int(metrics["admo/incentive_steps"])
+    assert steps == max(1, round(3 * float(metrics["admo/alpha_1"])))
+    adam = optax.adam(cfg.lr_incentive)
+    eta = jax.tree.map(lambda x: x[0], incentive)
+    opt = adam.init(eta)
+    ascent = jax.tree.map(jnp.negative, clean_grad)
+    for _ in range(1 + steps):
+        updates, opt = adam.update(ascent, opt)
+        eta = optax.apply_updates(eta, updates)
+    for got, want in zip(jax.tree.leaves(own.incentive), jax.tree.leaves(eta), strict=True):
+        np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-4, atol=1e-7)
+
+
+def test_admo_code_needs_an_incentive_channel():
+    from pimbot.experiment.config import RunConfig, resolve
+
+    for learner in ("reciprocator", "pg"):
+        with pytest.raises(envs.InvalidParameter, match="admo_code acts at the hook point"):
+            resolve(RunConfig("escape_room-v0", learner=learner, attack="admo_code"))

@@ -1,4 +1,5 @@
-"""Manipulations of one agent (spec/attacks.md): strategy attacks and ADMO, by name.
+"""Manipulations of one agent (spec/attacks.md): strategy attacks, ADMO and the
+published code's ADMO (`admo_code`), by name.
 
 `make(name, num_agents, **params)` builds a validated attack config;
 `register(cls)` adds a user's attack (the built-ins register the same way);
@@ -10,12 +11,13 @@ from __future__ import annotations
 from typing import Any
 
 from pimbot.attacks.admo import ADMO
+from pimbot.attacks.admo_code import ADMOCode
 from pimbot.attacks.strategies import Bypass, FakeIncentive, Reverse, SelfCentered
 from pimbot.contracts import attack as contract
 from pimbot.contracts.attack import NO_ATTACK, Attack, register
 from pimbot.envs.core import InvalidParameter
 
-for _cls in (SelfCentered, FakeIncentive, Bypass, Reverse, ADMO):
+for _cls in (SelfCentered, FakeIncentive, Bypass, Reverse, ADMO, ADMOCode):
     register(_cls, replace=True)
 
 CONDITION_ORDER = (
@@ -26,6 +28,8 @@ CONDITION_ORDER = (
     "reverse",
     "admo_stealthy",
     "admo_disrupt",
+    "admo_code_stealthy",
+    "admo_code_disrupt",
 )
 """The paper's display order of run conditions (attack labels); for sorting only —
 conditions not in it (a plugin's) sort after it, by name."""
@@ -65,6 +69,7 @@ def make(name: str, num_agents: int, **params: Any) -> Attack:
 __all__ = [
     "ADMO",
     "NO_ATTACK",
+    "ADMOCode",
     "Attack",
     "Bypass",
     "FakeIncentive",
