@@ -20,6 +20,9 @@ def print_envs() -> int:
         entry = envs.spec(env_id)
         print(f"{env_id}: {entry.description}")
         print("\n".join(describe(entry.constructor, entry.parameters())))
+        for learner, params in entry.learner_env_defaults.items():
+            values = ", ".join(f"{k}={v!r}" for k, v in params.items())
+            print(f"    with --learner {learner} (unless given): {values}")
     return 0
 
 
@@ -46,6 +49,12 @@ def print_learners() -> int:
             if changed:
                 values = ", ".join(f"{k}={v!r}" for k, v in changed.items())
                 print(f"    on {env_id} (declared by the environment): {values}")
+            env_params = envs.spec(env_id).learner_env_defaults.get(
+                definition.env_defaults_of or name, {}
+            )
+            if env_params:
+                values = ", ".join(f"{k}={v!r}" for k, v in env_params.items())
+                print(f"    on {env_id}, env parameters unless given: {values}")
     return 0
 
 

@@ -9,7 +9,7 @@
 
 from pimbot.envs.checks import check_env
 from pimbot.envs.core import Env, EnvSpec, InvalidParameter, make, register, registered, spec
-from pimbot.envs.escape_room import EscapeRoom
+from pimbot.envs.escape_room import EscapeRoom, EscapeRoomWithTransfer
 from pimbot.envs.matrix_games import IteratedPrisonersDilemma, MatrixGame, StagHuntMatrix
 from pimbot.envs.stag_hunt import StagHunt
 
@@ -60,6 +60,13 @@ register(
     learner_defaults={"reciprocator": _RECIPROCATOR_W1},
 )
 register(
+    "escape_room_transfer-v0",
+    EscapeRoomWithTransfer,
+    "COUNTERFACTUAL Escape Room (not LIO's): each move may also give `transfer` of the "
+    "step's positive reward to the others (a pay-back channel).",
+    learner_defaults={"reciprocator": _RECIPROCATOR_W1},
+)
+register(
     "ipd-v0",
     IteratedPrisonersDilemma,
     "Iterated prisoner's dilemma, N players: the mean of the pairwise payoffs (LIO's for N=2).",
@@ -68,6 +75,9 @@ register(
         "pg": _PG_IPD_COLUMN,
         "reciprocator": _RECIPROCATOR_MATRIX,
     },
+    # The original IPD trainer plays 32-step episodes; with 5 the Reciprocator's
+    # cooperation stalls at 0.5-0.7 (docs/results/reciprocators.md). NL shares its defaults.
+    learner_env_defaults={"reciprocator": {"max_steps": 32}},
 )
 register(
     "stag_hunt-v0",
@@ -86,6 +96,7 @@ __all__ = [
     "Env",
     "EnvSpec",
     "EscapeRoom",
+    "EscapeRoomWithTransfer",
     "InvalidParameter",
     "IteratedPrisonersDilemma",
     "MatrixGame",

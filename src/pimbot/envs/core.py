@@ -98,6 +98,9 @@ class EnvSpec:
     description: str
     learner_defaults: Mapping[str, Mapping[str, Any]] = dataclasses.field(default_factory=dict)
     """learner name -> hyperparameter overrides of its base config on this environment."""
+    learner_env_defaults: Mapping[str, Mapping[str, Any]] = dataclasses.field(default_factory=dict)
+    """learner name -> env parameters a run of that learner uses where the user gave none
+    (e.g. the Reciprocator's 32-step IPD episodes)."""
 
     def parameters(self) -> dict[str, Any]:
         """The constructor's parameters with their defaults."""
@@ -116,6 +119,7 @@ def register(
     constructor: Callable[..., Env],
     description: str,
     learner_defaults: Mapping[str, Mapping[str, Any]] | None = None,
+    learner_env_defaults: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> None:
     """Adds an environment constructor under a versioned id (e.g. ``"my_env-v0"``).
 
@@ -123,8 +127,16 @@ def register(
         learner_defaults: per learner name, the hyperparameters it should use here
             (e.g. ``{"lio": {"lr_policy": 1e-3}}``); learners not named keep their base
             config.
+        learner_env_defaults: per learner name, env parameters its runs default to
+            (e.g. ``{"reciprocator": {"max_steps": 32}}``); a parameter the run gives wins.
     """
-    entry = EnvSpec(env_id, constructor, description, dict(learner_defaults or {}))
+    entry = EnvSpec(
+        env_id,
+        constructor,
+        description,
+        dict(learner_defaults or {}),
+        {name: dict(params) for name, params in (learner_env_defaults or {}).items()},
+    )
     if env_id in _REGISTRY and _REGISTRY[env_id] != entry:
         raise ValueError(f"env id {env_id!r} is already registered")
     _REGISTRY[env_id] = entry

@@ -41,7 +41,8 @@ class RunConfig:
     iterations: int = 50_000
     """Training iterations per seed (one LIO iteration = two episodes)."""
     eval_period: int | None = None
-    """Iterations between evaluations; None = the environment's default (ER 100, else 1000)."""
+    """Iterations between evaluations; None = the environment's default (ER 100, else 1000;
+    a shorter run is evaluated once, at its end)."""
     eval_episodes: int | None = None
     """Evaluation episodes per evaluation point; None = 10."""
     attack: str | None = None
@@ -53,8 +54,9 @@ class RunConfig:
 
     def resolved_eval(self) -> tuple[int, int]:
         period, episodes = DEFAULT_EVAL.get(self.env_id, FALLBACK_EVAL)
+        # a run shorter than the default period is evaluated once, at its end
         return (
-            self.eval_period if self.eval_period is not None else period,
+            self.eval_period if self.eval_period is not None else min(period, self.iterations),
             self.eval_episodes if self.eval_episodes is not None else episodes,
         )
 
@@ -104,6 +106,13 @@ def env_parameters(env: Any) -> dict[str, Any]:
     return {f.name: getattr(env, f.name) for f in dataclasses.fields(env) if f.init}
 
 
+def env_arguments(run: RunConfig, learner: learners.LearnerDef) -> dict[str, Any]:
+    """The run's env parameters over the env's declared defaults for its learner (those of
+    the learner whose env defaults it shares, as NL the Reciprocator's)."""
+    declared = envs.spec(run.env_id).learner_env_defaults
+    return dict(declared.get(learner.env_defaults_of or learner.name, {})) | dict(run.env_params)
+
+
 def _check_positive_int(name: str, value: Any, low: int = 1) -> None:
     if isinstance(value, bool) or not isinstance(value, int) or value < low:
         raise InvalidParameter(f"{name}: must be an integer ≥ {low}, got {value!r}")
@@ -115,8 +124,8 @@ def resolve(run: RunConfig) -> ResolvedRun:
     Raises:
         InvalidParameter: naming the bad field and the allowed values.
     """
-    env = envs.make(run.env_id, **dict(run.env_params))
     learner = learners.get(run.learner)
+    env = envs.make(run.env_id, **env_arguments(run, learner))
     _check_positive_int("seeds", run.seeds)
     _check_positive_int("first_seed", run.first_seed, low=0)
     _check_positive_int("iterations", run.iterations)
