@@ -11,7 +11,14 @@ import numpy as np
 import pytest
 
 from pimbot import envs
-from pimbot.envs import EscapeRoom, InvalidParameter, MatrixGame, StagHunt, StagHuntMatrix
+from pimbot.envs import (
+    EscapeRoom,
+    EscapeRoomWithTransfer,
+    InvalidParameter,
+    MatrixGame,
+    StagHunt,
+    StagHuntMatrix,
+)
 from pimbot.envs.escape_room import DOOR, LEVER, START
 from pimbot.envs.matrix_games import COOPERATE, DEFECT, HARE, IPD_PAYOFF, STAG
 from pimbot.envs.stag_hunt import DOWN, LEFT, RIGHT, STAY, UP
@@ -56,6 +63,7 @@ def play(env, joint_actions, state=None, key=KEY):
 def test_registry_lists_every_env():
     assert envs.registered() == [
         "escape_room-v0",
+        "escape_room_transfer-v0",
         "ipd-v0",
         "stag_hunt-v0",
         "stag_hunt_matrix-v0",
@@ -190,6 +198,38 @@ def test_escape_room_truncates_at_max_steps_without_success():
     assert not any(s.info["success"] for s in steps)
     assert env.episode_success(jnp.int32(0), jnp.int32(5), jnp.zeros(2)) == 0.0
     assert env.episode_success(jnp.int32(1), jnp.int32(2), jnp.zeros(2)) == 1.0
+
+
+# --- the counterfactual Escape Room with a transfer (pay-back) action --------------------
+
+GIVE = 3  # actions GIVE + move: the same move, giving `transfer` of a positive step reward
+
+
+def test_escape_room_transfer_pays_back_the_lever_puller():
+    env = EscapeRoomWithTransfer(transfer=0.5)
+    assert env.num_actions == 6 and env.idle_action == START
+    (kept,) = play(env, [(LEVER, DOOR)])
+    assert kept.rewards == [-1.0, 10.0] and kept.info["transferred"] == [0.0, 0.0]
+    (paid,) = play(env, [(LEVER, GIVE + DOOR)])
+    assert paid.rewards == [4.0, 5.0] and paid.info["transferred"] == [0.0, 5.0]
+    assert paid.done and paid.info["success"] and paid.info["exit_success"] == [False, True]
+    # a negative or zero step reward is never transferred; the move is the action's
+    first, second = play(env, [(GIVE + LEVER, GIVE + START), (GIVE + LEVER, START)])
+    assert first.rewards == [-1.0, 0.0] and first.info["transferred"] == [0.0, 0.0]
+    assert int(second.state.positions[0]) == LEVER and not second.done
+
+
+def test_escape_room_transfer_splits_among_the_others_and_keeps_the_team_return():
+    env = EscapeRoomWithTransfer(n_agents=4, min_at_lever=2, transfer=0.3)
+    (s,) = play(env, [(LEVER, LEVER, GIVE + DOOR, DOOR)])
+    np.testing.assert_allclose(s.rewards, [-1.0 + 1.0, -1.0 + 1.0, 7.0, 10.0 + 1.0], atol=1e-6)
+    assert sum(s.rewards) == pytest.approx(env.optimal_team_return)
+
+
+@pytest.mark.parametrize("transfer", [0.0, -0.5, 1.5, True, "half"])
+def test_escape_room_transfer_must_be_a_fraction(transfer):
+    with pytest.raises(InvalidParameter, match="transfer: must be a number in"):
+        envs.make("escape_room_transfer-v0", transfer=transfer)
 
 
 def test_escape_room_observation_order():

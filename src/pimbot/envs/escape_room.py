@@ -10,6 +10,16 @@ step, otherwise it is truncated at `max_steps`.
 Per-step metric (`step_metrics`): "exit_success" [N], 1 for every agent that
 stands at the open door in the step (summed over an episode: whether agent i
 itself exited; the episode's success only says that some agent did).
+
+`escape_room_transfer-v0` (`EscapeRoomWithTransfer`) is a COUNTERFACTUAL variant, not
+LIO's environment: it adds a reward-transfer choice, to test whether a pay-back channel
+is what Reciprocators need in Escape Room (in `escape_room-v0` a door-goer's action
+cannot change a lever-puller's reward). Every action is a move plus a choice to give:
+actions 0-2 are the moves above, keeping everything; actions 3-5 are the same moves
+(action − 3) while giving the fraction `transfer` of the agent's positive reward of that
+step, split equally among the other agents (a zero-sum transfer: team returns, success
+and the optimal team return are those of ER(N, M)). Its per-step metric "transferred"
+[N] is what each agent gave. `escape_room-v0` itself is unchanged.
 """
 
 from __future__ import annotations
@@ -128,3 +138,32 @@ class EscapeRoom:
     def episode_success(self, success_steps, num_steps, env_return):
         del num_steps, env_return
         return (success_steps > 0).astype(jnp.float32)
+
+
+@dataclasses.dataclass(frozen=True)
+class EscapeRoomWithTransfer(EscapeRoom):
+    """Counterfactual ER(N, M) with a pay-back action: actions 3-5 move as 0-2 and give away
+    the fraction `transfer` of the step's positive reward, split among the others."""
+
+    transfer: float = 0.5
+    """Fraction of its positive step reward an agent gives with actions 3-5, in (0, 1]."""
+
+    num_actions: int = dataclasses.field(default=2 * NUM_POSITIONS, init=False)
+    step_metrics: tuple[str, ...] = dataclasses.field(
+        default=("exit_success", "transferred"), init=False
+    )
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        value = self.transfer
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value <= 1:
+            raise InvalidParameter(f"transfer: must be a number in (0, 1], got {value!r}")
+
+    def step(self, key: jax.Array, state: EscapeRoomState, actions: jax.Array):
+        actions = actions.astype(jnp.int32)
+        moves = actions % NUM_POSITIONS
+        obs, new_state, rewards, done, info = super().step(key, state, moves)
+        n = self.n_agents
+        given = jnp.where(actions >= NUM_POSITIONS, self.transfer * jnp.maximum(rewards, 0.0), 0.0)
+        rewards = rewards - given + (given.sum() - given) / (n - 1)
+        return obs, new_state, rewards.astype(jnp.float32), done, info | {"transferred": given}
