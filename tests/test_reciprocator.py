@@ -222,6 +222,20 @@ def test_default_configs():
     assert (nl.reciprocal_weight, nl.voi) == (0.0, "exact")
 
 
+def test_ipd_runs_of_the_reciprocator_default_to_the_originals_32_step_episodes():
+    """ipd-v0 declares max_steps = 32 for the Reciprocator (and NL, which shares its
+    defaults); a max_steps the run gives wins; other learners keep the env's 5."""
+    for learner in ("reciprocator", "nl"):
+        run = resolve(RunConfig("ipd-v0", learner=learner, iterations=100))
+        assert run.env.max_steps == 32
+        assert run.identity()["env_params"]["max_steps"] == 32
+        assert run.eval_period == 100  # shorter than the default period: one evaluation
+        given = RunConfig("ipd-v0", (("max_steps", 5),), learner=learner, iterations=100)
+        assert resolve(given).env.max_steps == 5
+    assert resolve(RunConfig("ipd-v0", learner="lio", iterations=1000)).env.max_steps == 5
+    assert resolve(RunConfig("escape_room-v0", learner="reciprocator")).env.max_steps == 5
+
+
 def test_bad_options_are_refused():
     with pytest.raises(InvalidParameter, match="voi: must be one of learned, exact"):
         reciprocator.init(jax.random.PRNGKey(0), IPD, dataclasses.replace(SMALL, voi="tabular"))
