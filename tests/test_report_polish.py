@@ -129,7 +129,10 @@ def test_every_figure_has_an_svg_beside_it(built):
 
 def test_seed_counts_come_from_the_runs(built):
     markdown = (built / report.MARKDOWN).read_text()
-    assert "over 2 seeds" in markdown and "medians of 2 seeds" in markdown
+    assert "over 2 seeds" in markdown
+    # Below 5 seeds an interval is the seeds' range, never called a CI.
+    assert "(range …) = the range (min … max) over seeds, no CI: fewer than 5 seeds" in markdown
+    assert "95 % CI" not in markdown and "[95 %" not in markdown
     assert "last 10 evaluation points" in markdown  # summarize's window, read back
     assert not re.search(r"\b(10|3) seeds\b", markdown)
     # No section spells out a seed count: every one is formatted from the runs.

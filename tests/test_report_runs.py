@@ -98,7 +98,7 @@ def test_report_on_unknown_attack_env_and_defense(suite, tmp_path):
     assert "| CM(2,1) | lio | none | clean |" in generic
     assert "| tripwire(sensitivity=2) | clean |" in generic
     row = next(line for line in generic.splitlines() if "| er21_lio_plugin |" in line)
-    assert row.count("[") == 4  # success, margin and both effects vs clean, with CIs
+    assert row.count("(range ") == 4  # success, margin, both effects vs clean: 2 seeds, ranges
     assert (out / report.FIGURES / "mygrid_success.png").exists()
     assert (out / report.TABLES / "mygrid.csv").exists()
     assert "attacks/" not in generic

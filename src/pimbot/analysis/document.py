@@ -13,6 +13,7 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 
 from pimbot.analysis.runs import RunRecord, RunTable
+from pimbot.analysis.statistics import MIN_SEEDS_FOR_CI
 from pimbot.analysis.tables import Table
 from pimbot.analysis.verdicts import KINDS, MARKERS, Verdict, from_text
 from pimbot.experiment.summary import FINAL_WINDOW
@@ -166,6 +167,16 @@ def final_window_text(records: Iterable[RunRecord]) -> str:
         (int(r.summary.get("final_window_evals", FINAL_WINDOW)) for r in records),
         "evaluation points",
     )
+
+
+def band_text(records: Iterable[RunRecord]) -> str:
+    """What a figure's bands are, from the seed counts of its runs."""
+    counts = {r.seeds for r in records}
+    if all(n >= MIN_SEEDS_FOR_CI for n in counts):
+        return "95 % BCa bootstrap band"
+    if all(n < MIN_SEEDS_FOR_CI for n in counts):
+        return "band: min–max over seeds"
+    return f"band: 95 % BCa bootstrap at ≥ {MIN_SEEDS_FOR_CI} seeds, min–max below"
 
 
 def slug(text: str) -> str:

@@ -246,6 +246,19 @@ def provenance(table: run_table.RunTable, ctx: Context, when: str) -> Section:
     return Section("Provenance", text=text, tables=[environment, budget_table])
 
 
+def original_code_runs() -> tuple[run_table.RunRecord, ...]:
+    """The run directories converted from the original PIMbot code's logs (analysis.
+    original_code, packaged with pimbot), as run records; none where that package has none."""
+    try:
+        from pimbot.analysis import original_code
+    except ImportError:  # the converted logs are not part of this install
+        return ()
+    root = Path(original_code.ROOT)
+    if not root.is_dir() or not original_code.run_dirs(root):
+        return ()
+    return run_table.load_table(root).original
+
+
 def clear_figures(out: Path) -> None:
     """Removes the figures of an earlier report in `out`: a figure this one does not write
     (its data gone) must not stay linked."""
@@ -264,6 +277,7 @@ def build(suite_dir: Path, out: Path) -> Report:
             f"{suite_dir}` first"
         )
     table = run_table.load_table(suite_dir, index)
+    table = dataclasses.replace(table, original=table.original + original_code_runs())
     ctx = Context(Path(suite_dir), Path(out), index)
     sections = [s for provide in PROVIDERS if (s := provide(table, ctx)) is not None]
     for section in sections:  # a figure with no data was not written: nothing to link

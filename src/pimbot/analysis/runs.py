@@ -26,6 +26,8 @@ from pimbot.experiment.summary import summarize
 
 CLEAN = "clean"
 NO_DEFENSE = "none"
+PIMBOT = "pimbot"
+ORIGINAL_CODE = "original code"
 SIZE_PARAMS = ("n_agents", "n_players", "min_at_lever")
 """Env parameters written in the env label, in this order: ER(n_agents,min_at_lever)."""
 
@@ -84,6 +86,12 @@ class RunRecord:
     def attack(self) -> str | None:
         return self.identity["attack"]
 
+    @property
+    def source(self) -> str:
+        """ "pimbot", or "original code" for a run converted from the original PIMbot
+        repository's logs (config.json "source")."""
+        return str(self.config.get("source", PIMBOT))
+
     def per_seed(self, column: str) -> np.ndarray:
         """Final value of `column` per seed (mean of the last evaluation points); [] if absent."""
         entry = self.summary["final"].get(column)
@@ -95,6 +103,19 @@ class RunTable:
     """Every finished training run of a suite, and one colour per condition."""
 
     records: tuple[RunRecord, ...]
+    original: tuple[RunRecord, ...] = ()
+    """Runs converted from the original code's logs (source "original code"): the claims'
+    original-code column, never a section's own rows."""
+
+    def original_for(self, env: str, condition: str, learner: str = "lio") -> RunRecord | None:
+        """The original code's run of one env label, condition and learner, if a log has it
+        (the longest of several: comparisons cut it at pimbot's horizon)."""
+        matches = [
+            r
+            for r in self.original
+            if r.env == env and r.condition == condition and r.learner == learner
+        ]
+        return max(matches, key=lambda r: (r.iterations, r.seeds), default=None)
 
     def group(self, name: str) -> list[RunRecord]:
         return [r for r in self.records if r.group == name]
@@ -258,7 +279,9 @@ def load_table(suite_dir: Path, index: dict | None = None) -> RunTable:
     """Every finished training run under `suite_dir` (`<group>/<setting>/` directories).
 
     Jobs the index lists with another kind (profiles, robot evaluations) are skipped;
-    finished run directories the index does not list are read too.
+    finished run directories the index does not list are read too. Run directories
+    converted from the original code's logs (config.json "source": "original code") are
+    kept apart, in `RunTable.original`.
     """
     suite_dir = Path(suite_dir)
     other_kinds = {
@@ -269,4 +292,8 @@ def load_table(suite_dir: Path, index: dict | None = None) -> RunTable:
         for path in suite_dir.glob("*/*")
         if path.is_dir() and _is_training_run(path)
     )
-    return RunTable(tuple(load_record(suite_dir, n) for n in names if n not in other_kinds))
+    loaded = [load_record(suite_dir, n) for n in names if n not in other_kinds]
+    return RunTable(
+        tuple(r for r in loaded if r.source != ORIGINAL_CODE),
+        tuple(r for r in loaded if r.source == ORIGINAL_CODE),
+    )

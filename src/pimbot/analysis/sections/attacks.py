@@ -6,17 +6,11 @@ import numpy as np
 
 from pimbot.analysis import plots
 from pimbot.analysis.curves import columns, load_curve
-from pimbot.analysis.document import (
-    Claim,
-    Context,
-    Section,
-    count_text,
-    final_window_text,
-    seeds_text,
-    verdict,
-)
+from pimbot.analysis.document import Context, Section, band_text, final_window_text, seeds_text
 from pimbot.analysis.runs import CLEAN, RunRecord, RunTable, condition_key, natural_key
-from pimbot.analysis.tables import Table, difference, estimate, fmt
+from pimbot.analysis.sections import attack_claims
+from pimbot.analysis.statistics import interval_text
+from pimbot.analysis.tables import INTERVAL, Table, difference, estimate, fmt
 
 GROUP = "attacks"
 CLAIMS_LEARNER = "lio"
@@ -45,7 +39,7 @@ def section(table: RunTable, ctx: Context) -> Section | None:
         path, figure = ctx.figure(
             "fig1_success.png",
             f"Fig. 1: success vs iterations per ER config, clean and attacks (mean over {seeds}, "
-            "95 % bootstrap band; dotted: a random team)",
+            f"{band_text(runs)}; dotted: a random team)",
         )
         if plots.curve_panels(panels, "eval/success", "success", path):
             out.figures.append(figure)
@@ -85,7 +79,12 @@ def section(table: RunTable, ctx: Context) -> Section | None:
         if plots.curve_panels(panels, "eval/success", "cooperation rate", path):
             out.figures.append(figure)
     out.tables = [convergence_table(runs), results_table(rows)]
-    out.claims = claims(rows)
+    admo = attack_claims.admo_table(
+        attack_claims.Runs(table, {(r.env, r.condition): r for r in runs})
+    )
+    if admo is not None:
+        out.tables.append(admo)
+    out.claims = attack_claims.claims(table, runs)
     return out
 
 
@@ -100,8 +99,9 @@ def intro(runs: list[RunRecord]) -> str:
         for kind in ("shared", "own")
     }
     text = (
-        f"Final = mean of the last {final_window_text(runs)} per seed, [95 % bootstrap CI "
-        f"over {seeds_text(runs)}]; Δ = attacked − clean with a bootstrap CI. Adversary = "
+        f"Final = mean of the last {final_window_text(runs)} per seed over {seeds_text(runs)}; "
+        f"{interval_text(r.seeds for r in runs)}; Δ = attacked − clean, the two runs' seeds "
+        "resampled independently. Adversary = "
         f"{adversary} (the runs' attack parameters); margin = its env return minus the mean "
         "of the others'."
     )
@@ -173,139 +173,14 @@ def convergence_table(runs: list[RunRecord]) -> Table:
 
 
 def results_table(rows: list[dict]) -> Table:
-    header = ["env", "condition", "seeds", "success [CI]", "Δ success [CI]", "return ratio"]
-    header += ["steps", "adversary margin [CI]", "Δ margin [CI]"]
+    header = ["env", "condition", "seeds", f"success {INTERVAL}", f"Δ success {INTERVAL}"]
+    header += ["return ratio", "steps", f"adversary margin {INTERVAL}", f"Δ margin {INTERVAL}"]
     cells = [
         [r["env"], r["condition"], r["seeds"], r["success"], r["d_success"], r["return_ratio"]]
         + [f"{r['steps']:.2f}", r["margin"], r["d_margin"]]
         for r in rows
     ]
     return Table(header, cells, name="attacks")
-
-
-def _seeds_of(rows: list[dict], envs, conditions) -> str:
-    counts = [r["seeds"] for r in rows if r["env"] in envs and r["condition"] in conditions]
-    return count_text(counts, "seeds")
-
-
-def claims(rows: list[dict]) -> list[Claim]:
-    """C1–C5, judged on the rows; each with a short summary for the claims table."""
-    by = {(r["env"], r["condition"]): r for r in rows}
-    out = []
-    # C1
-    parts, ok, short, passed = [], True, [], 0
-    c1_envs = ("ER(2,1)", "ER(4,2)", "IPD(2)")
-    for env in c1_envs:
-        r = by.get((env, "self_centered"))
-        if r is None or r["margin"] is None:
-            ok = False
-            parts.append(f"{env}: not run")
-            short.append(f"{env} not run")
-            continue
-        ok &= r["margin"].lo > 0
-        passed += r["margin"].lo > 0
-        parts.append(f"{env}: margin {r['margin'].mean:+.2f} (CI low {r['margin'].lo:+.2f})")
-        short.append(f"{env} {r['margin'].mean:+.2f}")
-    for env in ("ER(2,1)", "ER(4,2)"):
-        c, s = by.get((env, CLEAN)), by.get((env, "self_centered"))
-        if c and s:
-            parts.append(
-                f"{env}: first crossing {fmt(c['first_crossing_median'], 0)} → "
-                f"{fmt(s['first_crossing_median'], 0)}, convergence "
-                f"{fmt(c['convergence_median'], 0)} → {fmt(s['convergence_median'], 0)}"
-            )
-    speed_seeds = _seeds_of(rows, ("ER(2,1)", "ER(4,2)"), (CLEAN, "self_centered"))
-    out.append(
-        Claim(
-            "C1",
-            "self-centered: adversary above the others; ER converges faster",
-            "margin: 95 % CI of the adversary's final env-return margin over the mean of the "
-            "others > 0 in ER(2,1), ER(4,2), IPD; speed reported, not judged (medians of "
-            f"{speed_seeds})",
-            "; ".join(parts),
-            verdict(ok) + " (margin)",
-            f"margin {', '.join(short)}; CI above 0 in {passed}/{len(c1_envs)}",
-        )
-    )
-    # C2
-    rooms = ("ER(2,1)", "ER(4,2)", "ER(4,3)")
-    parts, ok = [], True
-    for env in rooms:
-        r = by.get((env, "fake_incentive"))
-        if r is None:
-            ok, parts = False, parts + [f"{env}: not run"]
-            continue
-        ok &= r["success"].mean <= 0.05
-        parts.append(f"{env}: {r['success'].mean:.3f}")
-    out.append(
-        Claim(
-            "C2",
-            "fake incentive (C = 50): success collapses to ~0 in ER",
-            "final success ≤ 0.05 in every ER config",
-            "; ".join(parts),
-            verdict(ok),
-        )
-    )
-    # C3, C4
-    for cid, cond, label in (("C3", "bypass", "bypass"), ("C4", "reverse", "reverse")):
-        parts, ok = [], True
-        for env, want_low in (("ER(2,1)", True), ("ER(4,3)", True), ("ER(4,2)", False)):
-            r = by.get((env, cond))
-            if r is None:
-                ok, parts = False, parts + [f"{env}: not run"]
-                continue
-            success = r["success"].mean
-            ok &= success <= 0.05 if want_low else success >= 0.9
-            parts.append(f"{env}: {success:.3f}")
-        out.append(
-            Claim(
-                cid,
-                f"{label}: 0 success in ER(2,1), ER(4,3); ER(4,2) still solved",
-                "final success ≤ 0.05 in ER(2,1) and ER(4,3), ≥ 0.9 in ER(4,2)",
-                "; ".join(parts),
-                verdict(ok),
-            )
-        )
-    # C5
-    parts, ok, margins, drops, judged = [], True, 0, 0, 0
-    for env in rooms:
-        s, d = by.get((env, "admo_stealthy")), by.get((env, "admo_disrupt"))
-        if s is None or d is None or s["d_margin"] is None or d["d_success"] is None:
-            ok, parts = False, parts + [f"{env}: not run"]
-            continue
-        ok &= s["d_margin"].lo > 0 and d["d_success"].hi < 0
-        judged += 1
-        margins += s["d_margin"].lo > 0
-        drops += d["d_success"].hi < 0
-        parts.append(f"{env}: stealthy Δmargin {s['d_margin']}, disrupt Δsuccess {d['d_success']}")
-    timed = [r for r in rows if r["condition"].startswith("admo") and "time_ratio" in r]
-    times = [r["time_ratio"] for r in timed]
-    ratios = [
-        f"{r['env']} {r['condition'].removeprefix('admo_')} {r['time_ratio']:.2f}" for r in timed
-    ]
-    parts.append(
-        "iteration time ADMO / clean, from the runs' it/s (the sweep's own timing; "
-        "benchmarks/throughput.py --attack admo measures it cleanly): " + ", ".join(ratios)
-    )
-    summary = (
-        f"stealthy Δmargin CI > 0 in {margins}/{len(rooms)}, disrupt Δsuccess CI < 0 in "
-        f"{drops}/{len(rooms)} ER configs"
-        + (f" ({len(rooms) - judged} not run)" if judged < len(rooms) else "")
-    )
-    if times:
-        summary += f"; ADMO iteration time {min(times):.2f}–{max(times):.2f}× clean"
-    out.append(
-        Claim(
-            "C5",
-            "ADMO: stealthy raises the adversary's margin, disrupt lowers team success",
-            "ER: 95 % CI of Δ margin (stealthy − clean) > 0 and of Δ success (disrupt − clean) < 0 "
-            "in every ER config",
-            "; ".join(parts),
-            verdict(ok),
-            summary,
-        )
-    )
-    return out
 
 
 # --- figures ---------------------------------------------------------------------------

@@ -16,7 +16,7 @@ import numpy as np
 from pimbot.analysis import plots, statistics
 from pimbot.analysis.document import Context, Section, count_text, iterations_text
 from pimbot.analysis.runs import CLEAN, NO_DEFENSE, RunRecord, RunTable, condition_key, natural_key
-from pimbot.analysis.tables import Table, estimate
+from pimbot.analysis.tables import INTERVAL, Table, estimate
 from pimbot.experiment import presets, store
 from pimbot.experiment.summary import convergence_point, final_value
 
@@ -41,7 +41,7 @@ def section(table: RunTable, ctx: Context) -> Section | None:
     path, figure = ctx.figure(
         "fig_defenses.png",
         f"Defenses: final success and adversary margin per defense set and attack (mean over "
-        f"{seeds}, 95 % bootstrap CI)",
+        f"{seeds}, {statistics.interval_text(len(c['seeds']) for c in cells.values())})",
     )
     plot(cells, path, table.colors)
     return Section(
@@ -246,7 +246,7 @@ def cost_table(cells: dict, timing: dict) -> Table:
                     None if ms is None else f"{ms:.2f}",
                 ]
             )
-    header = ["env", "defense", "success [95 % CI]", "Δ success vs none [95 % CI]"]
+    header = ["env", "defense", f"success {INTERVAL}", f"Δ success vs none {INTERVAL}"]
     header += ["converged seeds", "median convergence", "clipped / dropped per iteration"]
     note = (
         "Success and convergence (median iteration from which the smoothed return ratio — "

@@ -6,7 +6,7 @@ from __future__ import annotations
 import re
 
 from pimbot.analysis import plots
-from pimbot.analysis.document import Context, Section, final_window_text, seeds_text
+from pimbot.analysis.document import Context, Section, band_text, final_window_text, seeds_text
 from pimbot.analysis.runs import (
     CLEAN,
     NO_DEFENSE,
@@ -16,7 +16,8 @@ from pimbot.analysis.runs import (
     distinct_env_labels,
     natural_key,
 )
-from pimbot.analysis.tables import Table, difference, estimate
+from pimbot.analysis.statistics import interval_text
+from pimbot.analysis.tables import INTERVAL, Table, difference, estimate
 
 STYLES = ("-", "--", ":", "-.")
 """Line style per defense set within a panel (colour is the condition)."""
@@ -31,8 +32,9 @@ def section(table: RunTable, ctx: Context) -> Section | None:
         "Other training runs",
         text=[
             "Runs no paper section reads (a `pimbot sweep` grid, say), labelled from their "
-            f"configs. Final = mean of the last {final_window_text(rest)} per seed, [95 % "
-            f"bootstrap CI over {seeds_text(rest)}]; margin = the adversary's env return minus "
+            f"configs. Final = mean of the last {final_window_text(rest)} per seed over "
+            f"{seeds_text(rest)}; {interval_text(r.seeds for r in rest)}; margin = the "
+            "adversary's env return minus "
             "the mean of the others'; Δ = this run − the clean run of the same env, learner "
             "and defenses (seeds resampled independently)."
         ],
@@ -79,7 +81,7 @@ def group_results(table: RunTable, runs: list[RunRecord], group: str, ctx: Conte
         lines.append((run, label, colors[run.condition], style))
     path, figure = ctx.figure(
         f"{slug}_success.png",
-        f"{group}: success per condition (mean over {seeds_text(runs)}, 95 % CI band)",
+        f"{group}: success per condition (mean over {seeds_text(runs)}, {band_text(runs)})",
     )
     if not plots.curve_panels(
         list(panels.items()), "eval/success", "success", path, min(3, len(panels))
@@ -108,7 +110,7 @@ def group_results(table: RunTable, runs: list[RunRecord], group: str, ctx: Conte
             ]
         )
     header = ["env", "learner", "defenses", "condition", "seeds", "iterations"]
-    header += ["final success [CI]", "adversary margin [CI]", "Δ success vs clean [CI]"]
-    header += ["Δ margin vs clean [CI]", "run"]
+    header += [f"final success {INTERVAL}", f"adversary margin {INTERVAL}"]
+    header += [f"Δ success vs clean {INTERVAL}", f"Δ margin vs clean {INTERVAL}", "run"]
     title = f"{group}: {len(runs)} run(s), final metrics and effects vs clean"
     return figure, Table(header, rows, title, name=slug)

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-from pimbot.analysis import plots
+from pimbot.analysis import judging, plots, verdicts
 from pimbot.analysis.curves import load_curve
-from pimbot.analysis.document import Claim, Context, Section, seeds_text, verdict
+from pimbot.analysis.document import Claim, Comparison, Context, Section, band_text, seeds_text
 from pimbot.analysis.runs import CLEAN, RunRecord, RunTable, condition_key, natural_key
-from pimbot.analysis.tables import Table, difference, estimate
+from pimbot.analysis.statistics import interval_text
+from pimbot.analysis.tables import INTERVAL, Table, difference, estimate
 from pimbot.experiment import store
 
 GROUP = "reciprocators"
@@ -26,6 +27,8 @@ C7_TARGETS = {  # env label -> published upper bound on ADMO (disrupt) success
 CAPTURES_FILE = "stag_captures.json"
 """Stag captures per episode of each seed's final policy, replayed from the checkpoint
 (success counts hares too); read when a run directory holds it."""
+BASELINE = 0.8
+"""The published baseline "80–90 %": its lower end."""
 C7_TEXT = (
     "Reciprocators: baseline 80–90 % → ADMO near 0 (ER(4,3), Stag Hunt), < 30 % "
     "(ER(4,2)), < 10 % (IPD)"
@@ -73,7 +76,7 @@ def section(table: RunTable, ctx: Context) -> Section | None:
             "original's matrix agent (exact VoI, width-2 networks), on gridworlds the learned "
             "VoI; NL = the same PPO with reciprocal weight 0 (also the self-centered "
             "adversary). Details and the reasons for the iteration budgets: "
-            "docs/results/reciprocators.md."
+            f"docs/results/reciprocators.md. {interval_text(r.seeds for r in runs)}."
         ],
     )
     grudge = sorted(
@@ -90,47 +93,208 @@ def section(table: RunTable, ctx: Context) -> Section | None:
         path, figure = ctx.figure(
             "fig7_reciprocators.png", f"Fig. 7: Reciprocators, clean vs ADMO ({seeds})"
         )
-        title = f"C7: Reciprocators (mean over {seeds}, 95 % CI band)"
+        title = f"C7: Reciprocators (mean over {seeds}, {band_text(grudge)})"
         if plots.curve_panels(panels, "eval/success", "success", path, 3, (-0.05, 1.05), title):
             out.figures.append(figure)
     path, figure = ctx.figure("fig7b_ipd_fidelity.png", "Fig. 7b: 2-player IPD fidelity")
     if fig_fidelity(runs, path):
         out.figures.append(figure)
-    by = {(r["env"], r["learner"], r["condition"]): r for r in rows}
-    parts, ok, clean_ok, admo_ok, targets = [], True, 0, 0, 0
-    for env in [e for e in C7_ENVS if e in envs]:
-        clean = by.get((env, LEARNER, CLEAN))
-        admo = by.get((env, LEARNER, ATTACKED))
-        if clean is None or admo is None:
-            ok = False
-            parts.append(f"{env}: not run")
-            continue
-        base, attacked = clean["success"].mean, admo["success"].mean
-        ok &= base >= 0.8
-        clean_ok += base >= 0.8
-        if env in C7_TARGETS:
-            ok &= attacked < C7_TARGETS[env]
-            admo_ok += attacked < C7_TARGETS[env]
-            targets += 1
-        parts.append(f"{env}: {base:.2f} → {attacked:.2f}")
-    judged = [e for e in C7_ENVS if e in envs]
-    out.claims.append(
-        Claim(
-            "C7",
-            C7_TEXT,
-            "clean Reciprocator final success ≥ 0.8 in every env, and ADMO (disrupt) final "
-            "success < 0.1 in ER(4,3), IPD(2,3,4), Stag Hunt(2,3,4) and < 0.3 in ER(4,2)",
-            "clean → ADMO: " + "; ".join(parts),
-            verdict(ok),
-            f"clean ≥ 0.8 in {clean_ok}/{len(judged)} envs; ADMO below its bound in "
-            f"{admo_ok}/{targets}",
-        )
-    )
+    out.claims.append(c7(runs))
+    settings = settings_table(runs)
+    if settings is not None:
+        out.tables.append(settings)
     out.tables.append(results_table(rows))
     voi = voi_table(runs)
     if voi is not None:
         out.tables.append(voi)
     return out
+
+
+# --- C7 ---------------------------------------------------------------------------------
+
+
+def is_counterfactual(run: RunRecord) -> bool:
+    """A run of the clearly labelled ER variant with a reward-transfer action (an env
+    parameter naming "transfer", set): not the paper's environment."""
+    return any("transfer" in k and bool(v) for k, v in run.identity["env_params"].items())
+
+
+CODE_SETTINGS = {"lr": 1e-4, "gamma": 0.99}
+"""The learner values of the original code's Reciprocator Escape Room run (spec/experiments.md;
+with 1 or 128 episodes per update, w 5 and the accumulated balance)."""
+
+
+def is_code_setting(run: RunRecord) -> bool:
+    """A run at the original code's Reciprocator settings, read from its learner config."""
+    config = run.identity.get("learner_config", {})
+    return all(config.get(k) == v for k, v in CODE_SETTINGS.items())
+
+
+def setting_label(run: RunRecord) -> str:
+    """The learner settings a run overrode and the env parameters beyond the size."""
+    given = dict(run.config["run_config"].get("env_params", ()))
+    extra = {k: v for k, v in given.items() if k not in ("n_agents", "n_players", "min_at_lever")}
+    label = learner_label(run) + (f" [{run.hparams}]" if run.hparams else "")
+    if extra:
+        label += " env: " + ", ".join(f"{k}={v}" for k, v in sorted(extra.items()))
+    return label
+
+
+def primary(runs: list[RunRecord], env: str, condition: str) -> RunRecord | None:
+    """Our setting of `env`: the Reciprocator run (not the counterfactual) that overrides the
+    fewest of the learner's defaults (the suite's own C7 job; the original code's settings
+    override more)."""
+    mine = [
+        r
+        for r in runs
+        if r.env == env
+        and r.learner == LEARNER
+        and r.condition == condition
+        and not is_counterfactual(r)
+        and not is_code_setting(r)
+        and not variant(r)
+    ]
+    return min(mine, key=lambda r: (len(r.config["run_config"].get("hparams", ())), r.name),
+               default=None)  # fmt: skip
+
+
+def c7(runs: list[RunRecord]) -> Claim:
+    """C7 as stated: clean ≥ BASELINE everywhere, ADMO below its published bound. A clean ER
+    shortfall is classified by the other settings' runs: the transfer counterfactual solving
+    it means the paper's environment lacks what Reciprocators need; the original code's
+    settings failing too means the paper's own code does not give it."""
+    parts, lines, numbers = {}, [], []
+    for env in C7_ENVS:
+        clean, admo = primary(runs, env, CLEAN), primary(runs, env, ATTACKED)
+        if clean is None or admo is None:
+            continue
+        base = estimate(clean.per_seed("eval/success"))
+        attacked = estimate(admo.per_seed("eval/success"))
+        lines.append(f"{env}: {base.mean:.2f} → {attacked.mean:.2f}")
+        numbers.append(
+            Comparison(f"{env} clean → ADMO success", f"{clean.iterations:,} updates",
+                       f"≥ {BASELINE:g} → < {C7_TARGETS.get(env, '–')}", None,
+                       f"{base.mean:.2f} → {attacked.mean:.2f}")
+        )  # fmt: skip
+        if base.mean >= BASELINE:
+            parts[f"{env} baseline"] = verdicts.reproduced(f"{base}")
+        else:
+            parts[f"{env} baseline"] = baseline_shortfall(runs, env, clean, base)
+        if env in C7_TARGETS:
+            bound = C7_TARGETS[env]
+            parts[f"{env} ADMO"] = (
+                verdicts.reproduced(f"{attacked} < {bound:g}")
+                if attacked.mean < bound
+                else verdicts.refuted(
+                    verdicts.IMPLEMENTATION, f"ADMO success {attacked} not < {bound:g}"
+                )
+            )
+    counts = {k: sum(v.kind == k for v in parts.values()) for k in verdicts.KINDS}
+    return Claim(
+        "C7",
+        C7_TEXT,
+        f"our setting (the suite's C7 runs): clean Reciprocator mean final success ≥ "
+        f"{BASELINE:g} in every env, and ADMO (disrupt) < 0.1 in ER(4,3), IPD(2,3,4), Stag "
+        "Hunt(2,3,4), < 0.3 in ER(4,2); an ER shortfall is classified by the transfer "
+        "counterfactual and the original code's settings",
+        "clean → ADMO: " + "; ".join(lines) + "; " + _parts_text(parts),
+        verdicts.combine(parts),
+        ", ".join(f"{n} {verdicts.LABELS[k].split(' (')[0]}" for k, n in counts.items() if n)
+        + f" of {len(parts)} parts",
+        numbers,
+    )
+
+
+def baseline_shortfall(runs, env, clean, base) -> verdicts.Verdict:
+    others = [
+        r
+        for r in runs
+        if r.env == env and r.learner == LEARNER and r.condition == CLEAN and r is not clean
+    ]
+    transfer = [r for r in others if is_counterfactual(r)]
+    settings = [r for r in others if is_code_setting(r) and not is_counterfactual(r)]
+    best = max(
+        (
+            float(r.per_seed("eval/success").mean())
+            for r in transfer
+            if r.per_seed("eval/success").size
+        ),
+        default=None,
+    )
+    if best is not None and best >= BASELINE:
+        return verdicts.refuted(
+            verdicts.PAPER_ENVIRONMENT,
+            f"clean {base}; with a reward-transfer action (counterfactual) {best:.2f}: the "
+            "paper's env has no pay-back channel",
+        )
+    scores = [float(r.per_seed("eval/success").mean()) for r in settings
+              if r.per_seed("eval/success").size]  # fmt: skip
+    if scores and max(scores) < BASELINE:
+        return verdicts.refuted(
+            verdicts.PAPER_CODE,
+            f"clean {base}; at the original code's settings too: "
+            + ", ".join(f"{v:.2f}" for v in scores),
+        )
+    if scores:
+        return verdicts.refuted(
+            verdicts.BUDGET,
+            f"clean {base} at our setting; another setting reaches {max(scores):.2f}",
+        )
+    return verdicts.refuted(
+        verdicts.IMPLEMENTATION, f"clean {base} (no run at the original code's settings)"
+    )
+
+
+def _parts_text(parts: dict) -> str:
+    return "; ".join(f"{name}: {v.reason or v.label}" for name, v in parts.items())
+
+
+ROLE_NAMES = {"escape_room-v0": ("lever", "start", "door"), "ipd-v0": ("C", "D")}
+
+
+def voi_roles(run: RunRecord) -> str | None:
+    """Final VoI by role ("lever → door 0.12; …"), read from the train/voi_role/ columns."""
+    curves = judging.read_curves(run.path)
+    names = ROLE_NAMES.get(run.identity["env_id"])
+    keys = sorted(k for k in curves.values[curves.seeds[0]] if k.startswith("train/voi_role/"))
+    if not keys:
+        return None
+    parts = []
+    for key in keys:
+        x, y = key.removeprefix("train/voi_role/action_").split("_to_action_")
+
+        def name(a):
+            return names[int(a)] if names and int(a) < len(names) else f"a{a}"
+
+        parts.append(f"{name(x)} → {name(y)} {curves.final(key).mean():.3f}")
+    return "; ".join(parts)
+
+
+def _setting_kind(run: RunRecord) -> str:
+    if is_counterfactual(run):
+        return " (counterfactual: reward-transfer action)"
+    return " (the original code's settings)" if is_code_setting(run) else ""
+
+
+def settings_table(runs: list[RunRecord]) -> Table | None:
+    """Success and VoI by role per Reciprocator setting (ours, the original code's, the
+    transfer counterfactual, 2048 games per update) where the runs logged VoI by role."""
+    rows = []
+    for run in sorted(runs, key=lambda r: (natural_key(r.env), r.name)):
+        if run.learner != LEARNER:
+            continue
+        rows.append(
+            [run.env, setting_label(run) + _setting_kind(run),
+             run.condition, run.seeds, run.iterations, estimate(run.per_seed("eval/success")),
+             voi_roles(run), run.setting]
+        )  # fmt: skip
+    if not any(row[6] for row in rows):
+        return None
+    header = ["env", "setting", "condition", "seeds", "updates", f"success {INTERVAL}"]
+    header += ["final VoI by role (j's action → i's)", "run"]
+    return Table(
+        header, rows, "C7: success and VoI by role per setting", name="reciprocator_settings"
+    )
 
 
 def voi_table(runs: list[RunRecord]) -> Table | None:
@@ -142,14 +306,15 @@ def voi_table(runs: list[RunRecord]) -> Table | None:
             continue
         n, a = run.num_agents, run.adversary
         others = [j for j in range(n) if j != a]
-        given = [run.per_seed(f"train/voi/agent_{a}_to_agent_{j}") for j in others]
-        received = [run.per_seed(f"train/voi/agent_{j}_to_agent_{a}") for j in others]
+        curves = judging.read_curves(run.path)  # train/ columns: summary.json has eval/ only
+        given = [curves.final(f"train/voi/agent_{a}_to_agent_{j}") for j in others]
+        received = [curves.final(f"train/voi/agent_{j}_to_agent_{a}") for j in others]
         if any(v.size == 0 for v in given + received):
             continue  # a run stored before the pair metrics were logged
         row = [run.env, learner_label(run), run.condition, voi_kind(run)]
         row += [estimate(sum(given) / len(given)), estimate(sum(received) / len(received))]
         for metric in VOI_ROLES.values():
-            values = run.per_seed(metric)
+            values = curves.final(metric)
             row.append(estimate(values) if values.size and run.env.startswith("ER") else None)
         rows.append(row + [run.setting])
     if not rows:
@@ -199,9 +364,9 @@ def results_rows(runs: list[RunRecord]) -> list[dict]:
 
 
 def results_table(rows: list[dict]) -> Table:
-    header = ["env", "learner", "condition", "seeds", "iterations", "final success [95 % CI]"]
-    header += ["attacked − clean success [95 % CI]", "adversary margin (env) [95 % CI]"]
-    header += ["stag captures / episode [95 % CI]", "run"]
+    header = ["env", "learner", "condition", "seeds", "iterations", f"final success {INTERVAL}"]
+    header += [f"attacked − clean success {INTERVAL}", f"adversary margin (env) {INTERVAL}"]
+    header += [f"stag captures / episode {INTERVAL}", "run"]
     keys = ["env", "learner", "condition", "seeds", "iterations", "success", "effect_success"]
     keys += ["margin", "stag_captures", "run"]
     return Table(header, [[r[k] for k in keys] for r in rows], name="reciprocators")

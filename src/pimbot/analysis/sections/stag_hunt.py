@@ -4,16 +4,19 @@ from __future__ import annotations
 
 import numpy as np
 
-from pimbot.analysis import plots
-from pimbot.analysis.document import Claim, Context, Section, seeds_text, verdict
+from pimbot.analysis import judging, plots, verdicts
+from pimbot.analysis.document import Claim, Comparison, Context, Section, band_text, seeds_text
 from pimbot.analysis.runs import CLEAN, RunRecord, RunTable, natural_key
-from pimbot.analysis.tables import Estimate, Table, estimate
+from pimbot.analysis.statistics import interval_text
+from pimbot.analysis.tables import INTERVAL, Estimate, Table, difference, estimate
 from pimbot.experiment import store
 
 GROUP = "stag_hunt"
 ATTACKED = "admo_disrupt"
 SUCCESS = "eval/success"
 CAPTURES = "eval/stag_captures"
+TOWARD_ZERO = 0.1
+"""ADMO "drives success toward 0": mean final success at most this."""
 CODE_SUCCESS = "eval/return_over_stag_payoff/agent_0"
 """The quantity the PIMbot code logs and plots as Stag Hunt "success": agent 0's (its A1)
 episode env return / 5, unclipped."""
@@ -26,7 +29,7 @@ def section(table: RunTable, ctx: Context) -> Section | None:
     ctx.claim(runs)
     envs = sorted({r.env for r in runs}, key=natural_key)
     counts = ", ".join(str(n) for n in sorted({r.num_agents for r in runs}))
-    band = f"mean over {seeds_text(runs)}, 95 % bootstrap band"
+    band = f"mean over {seeds_text(runs)}, {band_text(runs)}"
     panels = plots.condition_panels(runs, envs, table.colors)
     figures = []
     for name, number, column, label in (
@@ -37,27 +40,23 @@ def section(table: RunTable, ctx: Context) -> Section | None:
         path, figure = ctx.figure(name, caption)
         if plots.curve_panels(panels, column, label, path):
             figures.append(figure)
-    rows, parts, ok, rising, low = [], [], True, 0, 0
+    rows, parts, lines, numbers = [], {}, [], []
     for env in envs:
         clean = next((r for r in runs if r.env == env and r.condition == CLEAN), None)
         admo = next((r for r in runs if r.env == env and r.condition == ATTACKED), None)
         if clean is None or admo is None:
-            ok = False
-            parts.append(f"{env}: not run")
+            parts[env] = verdicts.not_run(f"{env}: no clean or ADMO run")
             continue
-        gain = rise(clean)
-        final = estimate(admo.per_seed(SUCCESS))
-        ok &= gain.lo > 0 and final.mean <= 0.1
-        rising += gain.lo > 0
-        low += final.mean <= 0.1
-        part = f"{env}: clean rise {gain}, ADMO final {final}"
-        captures = estimate(clean.per_seed(CAPTURES))
-        if captures is not None:
-            part += (
-                f"; stag captures/episode clean {captures} (rise {rise(clean, CAPTURES)}), "
-                f"ADMO {estimate(admo.per_seed(CAPTURES))}"
-            )
-        parts.append(part)
+        judged, line = judge_env(env, clean, admo)
+        parts.update(judged)
+        lines.append(line)
+        numbers += [
+            Comparison(f"{env} clean success rise", f"{clean.iterations:,} it", "rises", None,
+                       str(rise(clean))),
+            Comparison(f"{env} ADMO final success", f"{admo.iterations:,} it", "→ 0", None,
+                       str(estimate(admo.per_seed(SUCCESS)))),
+        ]  # fmt: skip
+        reference = plots.RANDOM_POLICY.get(env, {}).get(CAPTURES)
         for run in (clean, admo):
             rows.append(
                 [
@@ -68,38 +67,47 @@ def section(table: RunTable, ctx: Context) -> Section | None:
                     rise(run),
                     estimate(run.per_seed(CAPTURES)),
                     rise(run, CAPTURES),
+                    reference,
                     estimate(run.per_seed(CODE_SUCCESS)),
                 ]
             )
+    verdict = verdicts.combine(parts)
+    counts = {k: sum(v.kind == k for v in parts.values()) for k in verdicts.KINDS}
     claim = Claim(
         "C6",
         "Stag Hunt N = 2, 3, 4: LIO baseline success rises; ADMO drives it toward 0",
-        "95 % CI of the clean runs' rise (final − first evaluation, per seed) > 0, and ADMO "
-        "(disrupt) final success ≤ 0.1, for every N",
-        "; ".join(parts),
-        verdict(ok),
-        f"clean rise CI > 0 in {rising}/{len(envs)}; ADMO final ≤ 0.1 in {low}/{len(envs)}",
+        "per N: the interval of the clean runs' rise of success (final − first evaluation, "
+        "per seed) > 0, and of their rise of stag captures > 0; ADMO (disrupt) mean final "
+        f"success ≤ {TOWARD_ZERO:g}. Where ours is not, but the code's metric (agent 0's own "
+        "return / 5) is, the paper's curve measures the adversary's reward",
+        "; ".join(lines) or "no runs",
+        verdict,
+        ", ".join(f"{n} {verdicts.LABELS[k].split(' (')[0]}" for k, n in counts.items() if n)
+        + f" of {len(parts)} parts",
+        numbers,
     )
     header = [
         "env",
         "condition",
         "seeds",
-        "final success [CI]",
-        "rise [CI]",
-        "stag captures / episode [CI]",
-        "captures rise [CI]",
-        "code's success: agent 0 return / 5 [CI]",
+        f"final success {INTERVAL}",
+        f"rise {INTERVAL}",
+        f"stag captures / episode {INTERVAL}",
+        f"captures rise {INTERVAL}",
+        "random team's captures",
+        f"code's success: agent 0 return / 5 {INTERVAL}",
     ]
     return Section(
         "Stag Hunt: LIO vs ADMO (C6)",
         text=[
             "Success = the hunters' mean episode env reward / 5, clipped at 1 (environments "
             "spec); hares alone can make it high, so the stag captures per episode are shown "
-            "beside it (a uniformly random team: ~0.067 for N = 2, ~0.003 for N = 3, ~1e-4 "
-            "for N = 4). The last column is the quantity the PIMbot code logs and plots as "
-            "Stag Hunt success: agent 0's (its A1's) episode env reward / 5, unclipped; "
-            "agent 0 is also the default ADMO adversary. Runs made before these metrics "
-            "existed show –."
+            "beside it with a uniformly random team's (spec/experiments.md, simulated under "
+            "the original rules). The last column is the quantity the PIMbot code logs and "
+            "plots as Stag Hunt success: its agent 1's (our agent 0's) episode env reward / "
+            "5, unclipped; that agent is also the default ADMO adversary, whose reward the "
+            "code's ADMO script negates. Runs made before these metrics existed show –. "
+            f"{interval_text(r.seeds for r in runs)}."
         ],
         tables=[Table(header, rows, name="stag_hunt")],
         figures=figures,
@@ -107,9 +115,44 @@ def section(table: RunTable, ctx: Context) -> Section | None:
     )
 
 
+def judge_env(env: str, clean: RunRecord, admo: RunRecord) -> tuple[dict, str]:
+    """C6's parts for one N: the clean rise of success and of stag captures, and ADMO's
+    final success (with the code's metric as the cause where ours disagrees)."""
+    parts = {}
+    gain = rise(clean)
+    parts[f"{env} success rises"] = judging.above(gain, 0.0, "rise") or judging.disagreement(
+        f"clean rise {gain} not above 0", None
+    )
+    captures_gain = rise(clean, CAPTURES)
+    parts[f"{env} stag captures rise"] = judging.above(
+        captures_gain, 0.0, "captures rise"
+    ) or judging.disagreement(f"clean captures rise {captures_gain} not above 0", None)
+    final = estimate(admo.per_seed(SUCCESS))
+    code = estimate(admo.per_seed(CODE_SUCCESS))
+    if final.mean <= TOWARD_ZERO:
+        parts[f"{env} ADMO → 0"] = verdicts.reproduced(f"ADMO final {final}")
+    elif code is not None and code.mean <= TOWARD_ZERO:
+        parts[f"{env} ADMO → 0"] = verdicts.refuted(
+            verdicts.PAPER_METRIC,
+            f"team success under ADMO {final}, but the code's 'success' (the adversary's own "
+            f"return / 5) {code}",
+        )
+    else:
+        parts[f"{env} ADMO → 0"] = judging.disagreement(
+            f"ADMO final {final}" + (f", code's metric {code}" if code is not None else ""), None
+        )
+    d_success = difference(admo.per_seed(SUCCESS), clean.per_seed(SUCCESS))
+    d_captures = difference(admo.per_seed(CAPTURES), clean.per_seed(CAPTURES))
+    line = (
+        f"{env}: clean rise {gain}, captures rise {captures_gain}; ADMO final {final}, "
+        f"Δ success {d_success}, Δ captures {d_captures}, code's metric under ADMO {code}"
+    )
+    return parts, line
+
+
 def rise(run: RunRecord, column: str = SUCCESS) -> Estimate | None:
-    """Mean over seeds of final − first evaluation of `column`, with a 95 % bootstrap CI
-    (None when the run did not log it)."""
+    """Mean over seeds of final − first evaluation of `column`, with its interval (None
+    when the run did not log it)."""
     final = run.per_seed(column)
     if final.size == 0:
         return None

@@ -1,0 +1,196 @@
+"""What the claim rules measure on runs: per-seed curves, values at a horizon, convergence at
+equal horizons, interval tests, what an environment's rules make impossible, and the cause
+of a disagreement.
+
+Pure functions of run directories (metrics.csv, config.json) and of the registered
+environments; the sections turn their results into `Claim`s.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+from pathlib import Path
+
+import numpy as np
+
+from pimbot.analysis import verdicts
+from pimbot.analysis.statistics import MIN_SEEDS_FOR_CI
+from pimbot.analysis.tables import Estimate, estimate
+from pimbot.analysis.verdicts import Verdict
+from pimbot.experiment import store
+from pimbot.experiment.summary import FINAL_WINDOW, convergence_point
+
+PAPER_ATTACK_BUDGET = 25_000
+"""PIMbot ran its ER attacks for 20–25k iterations (spec/experiments.md)."""
+
+
+# --- curves -----------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class Curves:
+    """One run's evaluation rows per seed: iterations [E] and every column's values [E]."""
+
+    seeds: tuple[int, ...]
+    iterations: dict[int, np.ndarray]
+    values: dict[int, dict[str, np.ndarray]]
+
+    @property
+    def horizon(self) -> int:
+        """The last iteration every seed reached."""
+        return int(min(its[-1] for its in self.iterations.values()))
+
+    def has(self, column: str) -> bool:
+        return bool(self.seeds) and column in self.values[self.seeds[0]]
+
+    def final(self, column: str, until: int | None = None) -> np.ndarray:
+        """Per seed, the mean of the last FINAL_WINDOW evaluations at or before `until`
+        (None: the whole run); [] where the column is absent."""
+        if not self.has(column):
+            return np.array([])
+        out = []
+        for seed in self.seeds:
+            keep = self.iterations[seed] <= (until if until is not None else np.inf)
+            out.append(float(self.values[seed][column][keep][-FINAL_WINDOW:].mean()))
+        return np.array(out)
+
+    def first(self, column: str) -> np.ndarray:
+        """Per seed, the first evaluation of `column`."""
+        if not self.has(column):
+            return np.array([])
+        return np.array([float(self.values[s][column][0]) for s in self.seeds])
+
+    def early_peak(self, column: str, fraction: float) -> float | None:
+        """The highest seed-mean value over the first `fraction` of the horizon."""
+        if not self.has(column):
+            return None
+        until = self.horizon * fraction
+        mean = np.mean(
+            [self.values[s][column][self.iterations[s] <= until] for s in self.seeds], axis=0
+        )
+        return float(mean.max()) if mean.size else None
+
+    def convergence(self, column: str, until: int) -> tuple[list, list]:
+        """(strict, first crossing) iteration per seed of `column` cut at `until`, None where
+        never: the spec's criterion (smoothed over 10 evaluations, stays ≥ 0.9) and the first
+        point the smoothed curve reaches 0.9."""
+        strict, first = [], []
+        for seed in self.seeds:
+            keep = self.iterations[seed] <= until
+            c, f = convergence_point(self.iterations[seed][keep], self.values[seed][column][keep])
+            strict.append(c)
+            first.append(f)
+        return strict, first
+
+
+def read_curves(run_dir: Path) -> Curves:
+    rows = store.read_metrics(Path(run_dir))
+    seeds = tuple(sorted({int(r["seed"]) for r in rows}))
+    iterations, values = {}, {}
+    for seed in seeds:
+        mine = sorted(
+            (r for r in rows if int(r["seed"]) == seed), key=lambda r: int(r["iteration"])
+        )
+        iterations[seed] = np.array([int(r["iteration"]) for r in mine])
+        values[seed] = {
+            k: np.array([float(r[k]) for r in mine]) for k in mine[0] if k not in ("seed",)
+        }
+    return Curves(seeds, iterations, values)
+
+
+def median_iteration(values: list) -> float | None:
+    """The median of per-seed iterations, a seed that never got there counted as +∞; None
+    where the median is +∞."""
+    if not values:
+        return None
+    median = float(np.median([np.inf if v is None else v for v in values]))
+    return median if np.isfinite(median) else None
+
+
+def iteration_text(value: float | None) -> str:
+    return "never" if value is None else f"{value / 1000:.1f}k"
+
+
+# --- interval tests ---------------------------------------------------------------------
+
+
+def above(est: Estimate | None, bound: float, what: str) -> Verdict | None:
+    """`what` > bound: reproduced if the whole interval is above; refuted-evidence (None
+    returned for the caller to classify) if the interval lies at or below, or a ≥ 5-seed CI
+    straddles with its mean at or below; inconclusive if it straddles with the mean above."""
+    if est is None:
+        return verdicts.inconclusive(f"{what} not logged by these runs")
+    if est.lo > bound:
+        return verdicts.reproduced(f"{what} {est}")
+    if est.hi <= bound or est.mean <= bound:
+        return None
+    return verdicts.inconclusive(f"{what} {est}: the interval includes {bound:g}")
+
+
+def enough_seeds(*counts: int) -> bool:
+    return min(counts) >= MIN_SEEDS_FOR_CI
+
+
+# --- the environment's rules ------------------------------------------------------------
+
+
+def success_reachable_with_idle(env_id: str, env_params: dict, idle_agent: int) -> bool:
+    """Whether any play of the other agents can make an episode succeed while `idle_agent`
+    always takes the env's idle action: every joint action of the others is stepped from
+    reset and again from every state that reached (two steps; in Escape Room an action sets
+    the position, so every reachable state is among those after one step)."""
+    import jax
+    import jax.numpy as jnp
+
+    from pimbot import envs
+
+    env = envs.make(env_id, **env_params)
+    others = [a for a in range(env.num_agents) if a != idle_agent]
+    joint = []
+    for choice in itertools.product(range(env.num_actions), repeat=len(others)):
+        actions = [env.idle_action] * env.num_agents
+        for agent, action in zip(others, choice, strict=True):
+            actions[agent] = action
+        joint.append(actions)
+    joint = jnp.array(joint, jnp.int32)  # [J, N]
+    key = jax.random.PRNGKey(0)
+    _, state = env.reset(key)
+
+    def one(state, actions):
+        _, next_state, _, _, info = env.step(key, state, actions)
+        return next_state, info["success"]
+
+    first_states, first_success = jax.vmap(one, in_axes=(None, 0))(state, joint)
+    second = jax.vmap(lambda s: jax.vmap(one, in_axes=(None, 0))(s, joint)[1])(first_states)
+    return bool(first_success.any() or second.any())
+
+
+def structure_text(env_params: dict, idle_agent: int, reachable: bool) -> str:
+    n, m = env_params.get("n_agents"), env_params.get("min_at_lever")
+    sizes = f"ER({n},{m}) needs {m} on the lever and one at the door; " if n else ""
+    others = f"the other {n - 1}" if n else "the others"
+    can = "can" if reachable else "cannot"
+    return f"{sizes}with agent {idle_agent} idle {others} {can} succeed (env rules enumerated)"
+
+
+# --- causes -----------------------------------------------------------------------------
+
+
+def disagreement(reason: str, original_agrees_with_paper: bool | None) -> Verdict:
+    """A refutation on learning evidence: the original code's logs, where they cover it,
+    decide between our implementation (they reproduce the paper) and the paper (they agree
+    with us); without a log the unexplained difference is ours."""
+    if original_agrees_with_paper is None:
+        return verdicts.refuted(verdicts.IMPLEMENTATION, f"{reason} (no original-code log)")
+    if original_agrees_with_paper:
+        return verdicts.refuted(
+            verdicts.IMPLEMENTATION, f"{reason}; the original code's logs reproduce the paper"
+        )
+    return verdicts.refuted(
+        verdicts.PAPER_CODE, f"{reason}; the original code's logs agree with pimbot"
+    )
+
+
+def per_seed_estimate(values: np.ndarray, digits: int = 3, signed: bool = False):
+    return estimate(values, digits, signed) if np.size(values) else None

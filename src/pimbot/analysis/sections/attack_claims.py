@@ -1,0 +1,577 @@
+"""Claims C1–C5 judged as the paper states them, at the paper's budget, from the attack
+group's LIO runs (and the original code's runs where its logs cover a setting).
+
+- C1a: the self-centered adversary's env-return margin over the others is above 0.
+- C1b: self-centered ER converges faster than clean, by first crossing and by the strict
+  criterion, both runs cut at their common horizon (paper: ER(2,1) 20k → 12.5k,
+  ER(4,2) 14k → 10.5k).
+- C2: fake incentive: early successes, then ~0.
+- C3: bypass: the parts the environment's rules decide (an idle agent makes a task in
+  which every agent is needed impossible) and the part that is evidence (ER(4,2) still
+  solved).
+- C4: reverse judged at the paper's 25k iterations; C4b the same rule at our longer horizon.
+- C5: ADMO: the adversary's margin against the symmetric baseline (0) and its own exit
+  success against the clean team's mean per agent, elevated in ER; disrupt lowers success
+  where the task is non-redundant; IPD nearly flat; steps per episode change modestly.
+  `admo` and `admo_code` (the published code's scheduler) side by side where both ran.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from pimbot.analysis import judging, verdicts
+from pimbot.analysis.document import Claim, Comparison
+from pimbot.analysis.judging import PAPER_ATTACK_BUDGET, Curves, iteration_text
+from pimbot.analysis.runs import CLEAN, RunRecord, RunTable
+from pimbot.analysis.tables import Table, difference, estimate
+from pimbot.analysis.verdicts import Verdict
+
+ROOMS = ("ER(2,1)", "ER(4,2)", "ER(4,3)")
+C1_ENVS = ("ER(2,1)", "ER(4,2)", "IPD(2)")
+PAPER_SPEED = {"ER(2,1)": (20_000, 12_500), "ER(4,2)": (14_000, 10_500)}
+"""Iterations to converge, clean → self-centered, as the paper states them."""
+LOW, SOLVED = 0.05, 0.9
+"""Success "~0" and "solved"."""
+EARLY_FRACTION, EARLY_PEAK = 0.2, 0.1
+"""C2's early successes: the seed-mean success peaks ≥ EARLY_PEAK in the first fifth."""
+FLAT = 0.1
+"""C5's "IPD nearly flat": the ADMO run's cooperation changes by less than this over training."""
+MODEST = 0.25
+"""C5's "steps change modestly": |Δ steps| / clean steps ≤ this."""
+ADMO_ATTACKS = ("admo", "admo_code")
+
+
+@dataclasses.dataclass
+class Runs:
+    """The attack group's LIO runs by (env label, condition), curves read once each."""
+
+    table: RunTable
+    by: dict[tuple[str, str], RunRecord]
+    curves: dict[str, Curves] = dataclasses.field(default_factory=dict)
+
+    def get(self, env: str, condition: str) -> RunRecord | None:
+        return self.by.get((env, condition))
+
+    def of(self, run: RunRecord) -> Curves:
+        if run.name not in self.curves:
+            self.curves[run.name] = judging.read_curves(run.path)
+        return self.curves[run.name]
+
+    def original(self, env: str, condition: str) -> RunRecord | None:
+        return self.table.original_for(env, condition)
+
+    def conditions(self, attack: str) -> list[str]:
+        """Conditions of runs whose config names `attack` (admo_stealthy, admo_code_…)."""
+        return sorted({r.condition for r in self.by.values() if r.attack == attack})
+
+
+def claims(table: RunTable, runs: list[RunRecord]) -> list[Claim]:
+    data = Runs(table, {(r.env, r.condition): r for r in runs})
+    return [c1a(data), c1b(data), c2(data), c3(data), *c4(data), c5(data)]
+
+
+def _missing(env: str) -> Verdict:
+    return verdicts.not_run(f"{env}: no run")
+
+
+# --- C1 ---------------------------------------------------------------------------------
+
+
+def c1a(data: Runs) -> Claim:
+    parts, numbers = {}, []
+    for env in C1_ENVS:
+        run = data.get(env, "self_centered")
+        if run is None:
+            parts[env] = _missing(env)
+            continue
+        margin = estimate(run.per_seed("eval/adversary_margin_env"), 2, signed=True)
+        judged = judging.above(margin, 0.0, "margin")
+        original = data.original(env, "self_centered")
+        original_margin = (
+            estimate(original.per_seed("eval/adversary_margin_env"), 2, signed=True)
+            if original
+            else None
+        )
+        if judged is None:
+            agrees = None if original_margin is None else original_margin.lo > 0
+            judged = judging.disagreement(f"margin {margin} not above 0", agrees)
+        parts[env] = judged
+        numbers.append(
+            Comparison(
+                f"{env} self-centered margin",
+                f"{run.iterations:,} it",
+                "> 0",
+                None if original_margin is None else str(original_margin),
+                str(margin),
+            )
+        )
+    return Claim(
+        "C1a",
+        "self-centered: the adversary's return is above the others'",
+        "the interval of the self-centered adversary's final env-return margin (its return − "
+        "the others' mean) lies above 0 in ER(2,1), ER(4,2), IPD",
+        _parts_text(parts),
+        verdicts.combine(parts),
+        _short(parts),
+        numbers,
+        jobs_of="C1",
+    )
+
+
+def c1b(data: Runs) -> Claim:
+    parts, numbers, measured = {}, [], []
+    for env, (paper_clean, paper_selfish) in PAPER_SPEED.items():
+        clean, selfish = data.get(env, CLEAN), data.get(env, "self_centered")
+        if clean is None or selfish is None:
+            parts[env] = _missing(env)
+            continue
+        a, b = data.of(clean), data.of(selfish)
+        column = "eval/return_ratio" if a.has("eval/return_ratio") else "eval/success"
+        horizon = min(a.horizon, b.horizon)
+        strict_a, first_a = a.convergence(column, horizon)
+        strict_b, first_b = b.convergence(column, horizon)
+        medians = {
+            "first crossing": (
+                judging.median_iteration(first_a),
+                judging.median_iteration(first_b),
+            ),
+            "strict": (judging.median_iteration(strict_a), judging.median_iteration(strict_b)),
+        }
+        text = ", ".join(
+            f"{k} {iteration_text(c)} → {iteration_text(s)}" for k, (c, s) in medians.items()
+        )
+        measured.append(
+            f"{env} at {horizon:,} it ({len(a.seeds)}+{len(b.seeds)} seeds; per seed clean "
+            f"{_iters(first_a)} / {_iters(strict_a)}, self-centered {_iters(first_b)} / "
+            f"{_iters(strict_b)}, first crossing / strict): {text}"
+        )
+        for kind, (c, s) in medians.items():
+            numbers.append(
+                Comparison(
+                    f"{env} convergence clean → self-centered ({kind})",
+                    f"{horizon:,} it",
+                    f"{paper_clean / 1000:g}k → {paper_selfish / 1000:g}k",
+                    _original_speed(data, env, column, horizon, kind),
+                    f"{iteration_text(c)} → {iteration_text(s)}",
+                )
+            )
+        parts[env] = _speed_verdict(env, medians, horizon, paper_clean, len(a.seeds), len(b.seeds))
+    return Claim(
+        "C1b",
+        "self-centered: ER converges faster than clean LIO (20k → 12.5k, 14k → 10.5k)",
+        "median iteration (a seed that never gets there counts as ∞) of self-centered < "
+        "clean by first crossing of 0.9 and by the strict criterion (smoothed over 10 "
+        "evaluations, stays ≥ 0.9), both runs cut at their common horizon",
+        "; ".join(measured) or _parts_text(parts),
+        verdicts.combine(parts),
+        _short(parts),
+        numbers,
+        jobs_of="C1",
+    )
+
+
+def _iters(values: list) -> str:
+    return "/".join(iteration_text(v) for v in values)
+
+
+def _speed_verdict(env, medians, horizon, paper_clean, n_clean, n_selfish) -> Verdict:
+    faster = {k: s is not None and (c is None or s < c) for k, (c, s) in medians.items()}
+    text = "; ".join(
+        f"{k} {iteration_text(c)} → {iteration_text(s)}" for k, (c, s) in medians.items()
+    )
+    if all(faster.values()):
+        return verdicts.reproduced(text)
+    if not judging.enough_seeds(n_clean, n_selfish):
+        return verdicts.inconclusive(f"{n_clean}+{n_selfish} seeds: {text}")
+    if horizon < paper_clean and all(c is None for c, _ in medians.values()):
+        return verdicts.inconclusive(f"{horizon:,} it < the paper's {paper_clean:,}: {text}")
+    slower = [k for k, ok in faster.items() if not ok]
+    return judging.disagreement(f"not faster by {' and '.join(slower)}: {text}", None)
+
+
+def _original_speed(data: Runs, env, column, horizon, kind) -> str | None:
+    clean, selfish = data.original(env, CLEAN), data.original(env, "self_centered")
+    if clean is None and selfish is None:
+        return None
+    out = []
+    for run in (clean, selfish):
+        if run is None:
+            out.append("no log")
+            continue
+        curves = data.of(run)
+        if not curves.has(column):
+            out.append("not logged")
+            continue
+        strict, first = curves.convergence(column, min(horizon, curves.horizon))
+        out.append(iteration_text(judging.median_iteration(first if kind != "strict" else strict)))
+    return " → ".join(out)
+
+
+# --- C2 ---------------------------------------------------------------------------------
+
+
+def c2(data: Runs) -> Claim:
+    parts = {}
+    for env in ROOMS:
+        run = data.get(env, "fake_incentive")
+        if run is None:
+            parts[env] = _missing(env)
+            continue
+        curves = data.of(run)
+        final = estimate(run.per_seed("eval/success"))
+        peak = curves.early_peak("eval/success", EARLY_FRACTION)
+        text = f"early peak {peak:.2f}, final {final}"
+        if peak is not None and peak >= EARLY_PEAK and final.mean <= LOW:
+            parts[env] = verdicts.reproduced(text)
+        else:
+            parts[env] = judging.disagreement(text, None)
+    return Claim(
+        "C2",
+        "fake incentive (C = 50): early, unstable successes, then ~0 success in ER",
+        f"the seed-mean success peaks ≥ {EARLY_PEAK:g} in the first "
+        f"{EARLY_FRACTION * 100:g} % of the run and the final success is ≤ {LOW:g}, in every "
+        "ER config",
+        _parts_text(parts),
+        verdicts.combine(parts),
+        _short(parts),
+    )
+
+
+# --- C3 ---------------------------------------------------------------------------------
+
+
+def c3(data: Runs) -> Claim:
+    parts, lines = {}, []
+    for env in ROOMS:
+        run = data.get(env, "bypass")
+        if run is None:
+            parts[env] = _missing(env)
+            continue
+        params = run.identity["env_params"]
+        reachable = judging.success_reachable_with_idle(
+            run.identity["env_id"], params, run.adversary
+        )
+        structure = judging.structure_text(params, run.adversary, reachable)
+        final = estimate(run.per_seed("eval/success"))
+        if not reachable:  # structural: the env's rules decide; the runs must agree
+            lines.append(f"{env} structural: {structure}; measured {final}")
+            if final.hi > 0:
+                parts[env] = verdicts.refuted(
+                    verdicts.IMPLEMENTATION,
+                    f"the env's rules forbid success, yet success {final} was measured",
+                )
+            else:
+                parts[env] = verdicts.reproduced(f"structural, measured {final}")
+        else:  # evidence: the redundant team must learn it
+            lines.append(f"{env} evidence: {structure}; measured {final}")
+            if final.mean >= SOLVED:
+                parts[env] = verdicts.reproduced(f"evidence, solved: {final}")
+            else:
+                original = data.original(env, "bypass")
+                agrees = (
+                    None
+                    if original is None
+                    else float(np.mean(original.per_seed("eval/success"))) >= SOLVED
+                )
+                parts[env] = judging.disagreement(
+                    f"evidence: success {final} not ≥ {SOLVED:g}", agrees
+                )
+    return Claim(
+        "C3",
+        "bypass: 0 success in ER(2,1), ER(4,3); ER(4,2) still solved (redundancy)",
+        "structural part: where the env's rules leave no joint action of the others that "
+        "succeeds with the adversary idle (every agent is needed), success must be 0 in "
+        f"every seed; evidence part: where they leave one, the mean final success ≥ {SOLVED:g}",
+        "; ".join(lines) or _parts_text(parts),
+        verdicts.combine(parts),
+        _short(parts),
+    )
+
+
+# --- C4 ---------------------------------------------------------------------------------
+
+
+def c4(data: Runs) -> list[Claim]:
+    at_budget, longer, numbers, lines, late = {}, {}, [], [], []
+    for env in ROOMS:
+        run = data.get(env, "reverse")
+        if run is None:
+            at_budget[env] = _missing(env)
+            continue
+        curves = data.of(run)
+        want_low = env != "ER(4,2)"
+        budget = estimate(curves.final("eval/success", PAPER_ATTACK_BUDGET))
+        full = estimate(curves.final("eval/success"))
+        rule = f"≤ {LOW:g}" if want_low else f"≥ {SOLVED:g}"
+        cut = min(curves.horizon, PAPER_ATTACK_BUDGET)
+
+        def holds(e, want_low=want_low):
+            return e.mean <= LOW if want_low else e.mean >= SOLVED
+
+        lines.append(f"{env}: at {cut:,} it {budget}" + (
+            f", at {curves.horizon:,} it {full}" if curves.horizon > PAPER_ATTACK_BUDGET else ""
+        ))  # fmt: skip
+        if curves.horizon < PAPER_ATTACK_BUDGET and not holds(budget):
+            at_budget[env] = verdicts.inconclusive(
+                f"{curves.horizon:,} it < the paper's {PAPER_ATTACK_BUDGET:,}: {budget}"
+            )
+        elif holds(budget):
+            at_budget[env] = verdicts.reproduced(f"{budget} at {cut:,} it")
+        else:
+            at_budget[env] = judging.disagreement(f"{budget} at {cut:,} it, not {rule}", None)
+        if curves.horizon > PAPER_ATTACK_BUDGET:
+            rise = full.mean - budget.mean
+            late.append(f"{env} {rise:+.3f} from {cut:,} to {curves.horizon:,} it")
+            longer[env] = (
+                verdicts.reproduced(f"{full} at {curves.horizon:,} it")
+                if holds(full)
+                else verdicts.refuted(
+                    verdicts.BUDGET,
+                    f"{full} at our {curves.horizon:,} it, not {rule}: a late change of "
+                    f"{rise:+.3f} after the paper's {PAPER_ATTACK_BUDGET:,}",
+                )
+            )
+        numbers.append(
+            Comparison(
+                f"{env} reverse success",
+                f"{cut:,} it",
+                "0" if want_low else "solved",
+                _original_final(data, env, "reverse", cut),
+                str(budget),
+            )
+        )
+    main = verdicts.combine(at_budget)
+    if main.kind == verdicts.REPRODUCED and any(
+        v.kind == verdicts.REFUTED for v in longer.values()
+    ):
+        main = verdicts.at_budget(main.reason + "; not at our longer horizon (C4b)")
+    out = [
+        Claim(
+            "C4",
+            "reverse: success → 0 except ER(4,2), at the paper's budget",
+            f"final success (mean of the last 10 evaluations at or before "
+            f"{PAPER_ATTACK_BUDGET:,} it), mean over seeds, ≤ {LOW:g} in ER(2,1), ER(4,3) and "
+            f"≥ {SOLVED:g} in ER(4,2)",
+            "; ".join(lines) or _parts_text(at_budget),
+            main,
+            _short(at_budget),
+            numbers,
+        )
+    ]
+    if longer:
+        out.append(
+            Claim(
+                "C4b",
+                "reverse at our longer horizon (robustness row)",
+                "the same rule at the end of runs longer than the paper's budget",
+                "; ".join(lines) + ("; late change: " + ", ".join(late) if late else ""),
+                verdicts.combine(longer),
+                "late change: " + ", ".join(late),
+                jobs_of="C4",
+            )
+        )
+    return out
+
+
+def _original_final(data: Runs, env, condition, until) -> str | None:
+    run = data.original(env, condition)
+    if run is None:
+        return None
+    curves = data.of(run)
+    return (
+        str(estimate(curves.final("eval/success", until))) if curves.has("eval/success") else None
+    )
+
+
+# --- C5 ---------------------------------------------------------------------------------
+
+
+def exit_success_margin(run: RunRecord, base: RunRecord | None):
+    """(the adversary's own final exit success, that minus the symmetric baseline: the clean
+    team's mean exit success per agent) per seed; (None, None) where not logged."""
+    own = run.per_seed(f"eval/exit_success/agent_{run.adversary}")
+    if own.size == 0 or base is None:
+        return None, None
+    per_agent = [base.per_seed(f"eval/exit_success/agent_{i}") for i in range(base.num_agents)]
+    if any(v.size == 0 for v in per_agent):
+        return estimate(own), None
+    return estimate(own), difference(own, np.mean(per_agent, axis=0))
+
+
+def admo_parts(data: Runs, condition_of: dict[str, str]) -> tuple[dict[str, Verdict], list]:
+    """The C5 parts for one ADMO attack; `condition_of` maps "stealthy"/"disrupt" to the
+    attack's condition labels present. Returns (parts, table rows)."""
+    parts, rows = {}, []
+    for env in ROOMS:
+        for mode, condition in condition_of.items():
+            run, base = data.get(env, condition), data.get(env, CLEAN)
+            if run is None or base is None:
+                continue
+            margin = estimate(run.per_seed("eval/adversary_margin_env"), 2, signed=True)
+            own, own_gain = exit_success_margin(run, base)
+            d_success = difference(run.per_seed("eval/success"), base.per_seed("eval/success"))
+            steps, clean_steps = (
+                float(run.per_seed("eval/steps").mean()),
+                float(base.per_seed("eval/steps").mean()),
+            )
+            rows.append([env, condition, run.seeds, margin, own, own_gain, d_success,
+                         f"{steps:.2f} ({(steps - clean_steps) / clean_steps:+.0%})"])  # fmt: skip
+            if mode == "stealthy" or len(condition_of) == 1:
+                parts[f"{env} {condition} margin"] = judging.above(
+                    margin, 0.0, "margin"
+                ) or verdicts.refuted(verdicts.IMPLEMENTATION, f"margin {margin} not above 0")
+                parts[f"{env} {condition} own success"] = (
+                    judging.above(own_gain, 0.0, "exit success − clean per-agent mean")
+                    if own_gain is not None
+                    else verdicts.inconclusive("per-agent exit success not logged by these runs")
+                )
+                if parts[f"{env} {condition} own success"] is None:
+                    parts[f"{env} {condition} own success"] = verdicts.refuted(
+                        verdicts.IMPLEMENTATION,
+                        f"own exit success {own} not above the clean per-agent mean ({own_gain})",
+                    )
+            if mode == "disrupt":
+                params = run.identity["env_params"]
+                redundant = judging.success_reachable_with_idle(
+                    run.identity["env_id"], params, run.adversary
+                )
+                if not redundant:
+                    parts[f"{env} {condition} disrupts"] = (
+                        verdicts.reproduced(f"Δ success {d_success}")
+                        if d_success.hi < 0
+                        else verdicts.refuted(
+                            verdicts.IMPLEMENTATION,
+                            f"non-redundant task, Δ success {d_success} not below 0",
+                        )
+                    )
+            change = abs(steps - clean_steps) / clean_steps
+            if mode == "disrupt" and len(condition_of) > 1:
+                continue  # the paper's ADMO raises its own gain: steps judged on that mode
+            parts[f"{env} {condition} steps"] = (
+                verdicts.reproduced(f"steps {change:.0%} from clean")
+                if change <= MODEST
+                else verdicts.refuted(
+                    verdicts.IMPLEMENTATION, f"steps change {change:.0%} > {MODEST:.0%}"
+                )
+            )
+    for condition in condition_of.values():
+        run = data.get("IPD(2)", condition)
+        if run is None:
+            continue
+        curves = data.of(run)
+        change = estimate(curves.final("eval/success") - curves.first("eval/success"), signed=True)
+        flat = change.lo >= -FLAT and change.hi <= FLAT
+        parts[f"IPD {condition} flat"] = (
+            verdicts.reproduced(f"cooperation change {change}")
+            if flat
+            else verdicts.refuted(
+                verdicts.IMPLEMENTATION, f"cooperation change {change} beyond ±{FLAT:g}"
+            )
+        )
+    return parts, rows
+
+
+def c5(data: Runs) -> Claim:
+    attacks = {}
+    for attack in ADMO_ATTACKS:
+        conditions = data.conditions(attack)
+        if not conditions:
+            continue
+        modes = {
+            ("disrupt" if "disrupt" in c else "stealthy" if "stealthy" in c else c): c
+            for c in conditions
+        }
+        attacks[attack] = admo_parts(data, modes)
+    if "admo" not in attacks:
+        return Claim(
+            "C5",
+            "ADMO vs LIO: adversary's reward and success elevated in ER; IPD nearly flat; "
+            "steps change modestly",
+            "–",
+            "no ADMO run",
+            verdicts.not_run("no ADMO run"),
+        )
+    parts, _ = attacks["admo"]
+    code_parts = attacks.get("admo_code", ({}, []))[0]
+    parts = {name: _classified(name, v, code_parts) for name, v in parts.items()}
+    shapes = []
+    for attack, (mine, _) in attacks.items():
+        met = sum(v.kind == verdicts.REPRODUCED for v in mine.values())
+        shapes.append(f"{attack} {met}/{len(mine)} parts")
+    measured = _parts_text(parts)
+    if "admo_code" in attacks:
+        measured += "; admo_code: " + _parts_text(code_parts)
+    else:
+        measured += "; admo_code (the published code's scheduler): no runs in this suite"
+    return Claim(
+        "C5",
+        "ADMO vs LIO: adversary's reward and success elevated in ER; IPD nearly flat; "
+        "steps change modestly",
+        "ER: the stealthy adversary's margin > 0 (the symmetric baseline) and its own exit "
+        "success > the clean team's mean per agent (intervals); disrupt lowers success "
+        f"(Δ interval < 0) where the task is non-redundant (env rules); IPD: ADMO cooperation "
+        f"changes by < ±{FLAT:g} over training; stealthy |Δ steps| / clean ≤ {MODEST:.0%}",
+        measured,
+        verdicts.combine(parts),
+        "paper's shapes: " + ", ".join(shapes) + "; " + _short(parts),
+    )
+
+
+def _classified(name: str, verdict: Verdict, code_parts: dict[str, Verdict]) -> Verdict:
+    """A refuted part of our ADMO: where the published code's scheduler gives it, the cause
+    is our spec's ADMO; where the scheduler fails it too, the paper's own code."""
+    if verdict.kind != verdicts.REFUTED:
+        return verdict
+    code_name = next(
+        (k for k in code_parts if k.split(" ")[0] == name.split(" ")[0]
+         and k.split(" ")[-1] == name.split(" ")[-1]), None,
+    )  # fmt: skip
+    if code_name is None:
+        return verdict
+    code = code_parts[code_name]
+    if code.kind == verdicts.REPRODUCED:
+        return verdicts.refuted(verdicts.SPEC, f"{verdict.reason}; admo_code gives it")
+    if code.kind == verdicts.REFUTED:
+        return verdicts.refuted(verdicts.PAPER_CODE, f"{verdict.reason}; admo_code neither")
+    return verdict
+
+
+def admo_table(data: Runs) -> Table | None:
+    rows = []
+    for attack in ADMO_ATTACKS:
+        conditions = data.conditions(attack)
+        modes = {c: c for c in conditions}
+        rows += admo_parts(data, modes)[1]
+    if not rows:
+        return None
+    header = ["env", "condition", "seeds", "adversary margin [interval]"]
+    header += ["adversary's own exit success", "own exit success − clean per-agent mean"]
+    header += ["Δ success vs clean", "steps (vs clean)"]
+    return Table(
+        header,
+        rows,
+        "ADMO (ours) vs admo_code (the published code's scheduler)",
+        "The adversary's margin against the symmetric baseline 0 and its own exit success "
+        "against the clean team's mean per agent (clean agent 0's margin is ±10 by which "
+        "agent took the door, so clean is no baseline for one agent).",
+        "attacks_admo",
+    )
+
+
+# --- text -------------------------------------------------------------------------------
+
+
+def _parts_text(parts: dict[str, Verdict]) -> str:
+    return "; ".join(f"{name}: {v.reason or v.label}" for name, v in parts.items())
+
+
+def _short(parts: dict[str, Verdict]) -> str:
+    counts = {}
+    for v in parts.values():
+        counts[v.kind] = counts.get(v.kind, 0) + 1
+    return ", ".join(f"{n} {verdicts.LABELS[k].split(' (')[0]}" for k, n in counts.items()) + (
+        f" of {len(parts)} parts"
+    )
