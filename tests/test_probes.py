@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import types
 import typing
+from pathlib import Path
 
 import pytest
 import tyro
@@ -189,3 +190,21 @@ def test_bad_name_value_is_one_line_exit_2_nothing_written(tmp_path, capsys, fla
     assert err.startswith("pimbot: error: ") and len(err.strip().splitlines()) == 1, err
     assert expected in err, err
     assert not out.exists()
+
+
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux /proc")
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["reproduce", "--quick", "--out", "/proc/pimbot_probe/suite"],
+        ["train", "ipd-v0", "--iterations", "10", "--out", "/proc/pimbot_probe"],
+    ],
+    ids=" ".join,
+)
+def test_a_place_the_checks_cannot_foresee_is_one_line(capsys, argv):
+    # /proc passes os.access for root, so the refusal comes from the OSError itself.
+    code = cli.main(argv)
+    err = capsys.readouterr().err
+    assert code in (1, 2), err
+    assert err.startswith("pimbot: error: ") and len(err.strip().splitlines()) == 1, err
+    assert "pimbot_probe" in err, err  # the run directory or its lock file

@@ -191,3 +191,7 @@ def main(argv: list[str] | None = None) -> int:
 
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 1
+    except OSError as error:  # a place the checks could not foresee (e.g. /proc, a full disk)
+        where = f"{error.filename}: " if error.filename else ""
+        print(f"pimbot: error: {where}{error.strerror or error}", file=sys.stderr)
+        return 1
