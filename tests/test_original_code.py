@@ -117,6 +117,9 @@ def test_claims_and_derived_columns_are_consistent():
         assert original_code.runs_for_claim(claim)
     assert not original_code.runs_for_claim("C5")
     assert "C1" in original_code.claims_of(CLEAN_ER21_10_RUNS)
+    first = original_code.runs_for_claim("C1")[0]  # a plotted series of independent seeds
+    assert original_code.plotted_by(first) and original_code.independent_seeds(first)
+    assert not original_code.independent_seeds(original_code.ROOT / "ipd_30k" / "ipd_pure_lio")
     for run_dir in (CLEAN_ER21_10_RUNS, original_code.ROOT / "er_25k" / "er4_2_greedy_det"):
         config = store.read_json(run_dir / store.CONFIG)
         n, optimum = config["env"]["num_agents"], config["env"]["optimal_team_return"]

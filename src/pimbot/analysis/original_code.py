@@ -27,11 +27,14 @@ packaged under `ROOT` as ``<group>/<setting>/`` with ``<group>`` = the game and 
 directory and seed it became, the seed it is a copy of, or why it was left out.
 
 Interface (for the report): `run_dirs()` lists the converted run directories;
-`claims_of(run_dir)` the claims a run speaks to; `runs_for_claim("C1")` the reverse;
-`summary_at(run_dir, iterations)` pimbot's summary of a run cut at a horizon, and
-`truncated` the cut directory itself, so the original code and pimbot are compared at
-equal horizons (convergence depends on the horizon). `pimbot.analysis.runs.load_table
-(ROOT)` reads them all into a run table.
+`claims_of(run_dir)` the claims a run speaks to (``original.claim_roles`` says whether as
+the attacked run or as the clean baseline); `runs_for_claim("C1")` the reverse, best
+series first (`preferred_order`: the series the repository's plot scripts read, i.e. the
+paper's figures, `plotted_by`; then independent seeds, `independent_seeds`; then more
+seeds); `summary_at(run_dir, iterations)` pimbot's summary of a run cut at a horizon,
+and `truncated` the cut directory itself, so the original code and pimbot are compared
+at equal horizons (convergence depends on the horizon). `pimbot.analysis.runs.load_table
+(ROOT)` reads them all into a run table (as `RunTable.original`).
 
 The writing side (`distinct_logs`, `metrics_rows`, `run_metadata`, `write_run_dir`) is
 what the import script calls; it reads only bytes and pimbot's own env objects.
@@ -106,9 +109,28 @@ def plotted_by(run_dir: Path) -> tuple[str, ...]:
     return tuple(original_info(run_dir).get("read_by_plot_scripts", ()))
 
 
+def independent_seeds(run_dir: Path) -> bool:
+    """Whether the run's logs differ from their first evaluation (independent seeds) rather
+    than sharing opening rows (reruns of one random seed that drift apart later)."""
+    opening = original_info(run_dir)["shared_opening"]
+    return opening["rows_equal_in_all_seeds"] == 0
+
+
+def preferred_order(dirs: Iterable[Path]) -> list[Path]:
+    """`dirs` best first for a claim's "original code" column: the series the repository's
+    plot scripts read (the paper's figures), then independent seeds before reruns of one
+    seed, then more seeds; ties in natural order."""
+
+    def key(path: Path) -> tuple:
+        seeds = len(original_info(path)["seeds"])
+        return (not plotted_by(path), not independent_seeds(path), -seeds, natural_key(str(path)))
+
+    return sorted(dirs, key=key)
+
+
 def runs_for_claim(claim: str, root: Path = ROOT) -> list[Path]:
-    """The converted run directories that speak to `claim` (``"C3"``)."""
-    return [p for p in run_dirs(root) if claim in claims_of(p)]
+    """The converted run directories that speak to `claim` (``"C3"``), `preferred_order`."""
+    return preferred_order(p for p in run_dirs(root) if claim in claims_of(p))
 
 
 def manifest(root: Path = ROOT) -> dict[str, Any]:
@@ -404,9 +426,11 @@ __all__ = [
     "DistinctLog",
     "claims_of",
     "distinct_logs",
+    "independent_seeds",
     "manifest",
     "metrics_rows",
     "plotted_by",
+    "preferred_order",
     "run_dirs",
     "run_metadata",
     "runs_for_claim",
