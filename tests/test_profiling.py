@@ -1,12 +1,17 @@
-"""On-device profiling: tegrastats parsing, sensor fallbacks, RAPL wrap-around, end to end."""
+"""On-device profiling: tegrastats parsing, sensor fallbacks, RAPL wrap-around, the process's
+own CPU, the training cadence, C8's verdict rules, end to end."""
 
 import csv
 import json
+import os
 
+import numpy as np
 import pytest
 
 from pimbot import cli
-from pimbot.profiling import report, samplers, tegrastats
+from pimbot.analysis import verdicts
+from pimbot.envs import InvalidParameter
+from pimbot.profiling import ProfileConfig, cadence, process_cpu, report, samplers, tegrastats
 
 ORIN_JP6 = (
     "RAM 2456/7620MB (lfb 2x4MB) SWAP 0/3810MB (cached 0MB) "
@@ -174,8 +179,6 @@ def test_combined_prefers_tegrastats_total_power():
 
 
 def test_truncate_idle_gpu_cuts_long_zero_stretches():
-    import numpy as np
-
     t = np.arange(20.0)
     gpu = np.array([50.0] * 2 + [0.0] * 15 + [60.0] * 3)
     trace = {"time_s": t, "gpu": gpu, "cpu": gpu, "temp": gpu}
@@ -208,7 +211,7 @@ def test_paired_profile_end_to_end(tmp_path, capsys):
         "16",
         "8",
         "--update-every",
-        "50",
+        "10",
         "--sample-hz",
         "4",
         "--out",
@@ -222,11 +225,11 @@ def test_paired_profile_end_to_end(tmp_path, capsys):
     assert (out / "profile.png").stat().st_size > 0
     for controller in ("benign", "admo"):
         run = out / controller
-        for name in ("trace.csv", "latency.csv", "updates.csv", "summary.json"):
+        for name in ("trace.csv", "latency.csv", "updates.csv", "segments.csv", "summary.json"):
             assert (run / name).exists(), name
         s = summary[controller]
         assert s["config"]["controller"] == controller
-        assert s["config"]["hidden"] == [16, 8]
+        assert s["config"]["hidden"] == [16, 8] and s["config"]["cadences"] == [10]
         assert s["latency_ms"]["count"] > 0
         assert s["latency_ms"]["p50"] <= s["latency_ms"]["p99"] <= s["latency_ms"]["max"]
         assert s["decisions_per_s"] > 0
@@ -236,11 +239,160 @@ def test_paired_profile_end_to_end(tmp_path, capsys):
             assert key in s
         assert s["sensors"]["psutil"] is True
         rows = list(csv.DictReader((run / "trace.csv").read_text().splitlines()))
-        assert len(rows) >= 2 and {"cpu", "gpu", "temp", "power", "phase"} <= set(rows[0])
+        assert len(rows) >= 2 and {"cpu", "process_cpu", "gpu", "temp", "power"} <= set(rows[0])
+        assert {r["controller"] for r in rows} <= {controller, ""}  # its own samples only
         lat = list(csv.DictReader((run / "latency.csv").read_text().splitlines()))
         assert len(lat) == s["latency_ms"]["count"]
+        # every segment is whole cycles: `cadence` decisions, then one update
+        segments = list(csv.DictReader((run / "segments.csv").read_text().splitlines()))
+        assert len(segments) == s["config"]["rounds"]
+        for seg in segments:
+            assert int(seg["decisions"]) == 10 * int(seg["updates"]) > 0
+        at = s["cadences"]["10"]
+        assert at["decisions"] == 10 * at["updates"] == s["latency_ms"]["count"]
+        lat_s = sum(float(r["latency_s"]) for r in lat)
+        updates = csv.DictReader((run / "updates.csv").read_text().splitlines())
+        upd_s = sum(float(r["time_s"]) for r in updates)
+        assert at["amortized_ms"] == pytest.approx(1e3 * (lat_s + upd_s) / at["decisions"])
+        cpu = at["process_cpu"]
+        assert cpu["windows"] >= len(segments) and 0 < cpu["mean"] <= cpu["max"] <= 100.0
+        assert cpu["one_core_mean"] == pytest.approx(cpu["mean"] * s["usable_cores"])
     # Only the controller differs between the paired runs.
     b, a = summary["benign"]["config"], summary["admo"]["config"]
     assert {k for k in b if b[k] != a[k]} == {"controller"}
-    assert summary["comparison"]["latency_p50_ms"]["benign"] > 0
-    assert "percent_of_decision" in summary["comparison"]["update_per_decision_ms"]
+    comp = summary["comparison"]
+    assert comp["latency_p50_ms"]["benign"] > 0
+    assert "percent_of_decision" in comp["update_per_decision_ms"]
+    # LIO's ER(2,1) training: 2 episodes per update of a 5-step horizon = the cadence run
+    training = comp["training_cadence"]
+    assert (training["episodes_per_update"], training["decisions_per_update"]) == (2, 10)
+    assert 2 <= training["played_per_update"]["benign"] <= 10
+    assert comp["judged_cadence"] == 10
+    assert len(comp["cadences"]["10"]["per_round_percent"]) == b["rounds"]
+    amortized = comp["cadences"]["10"]["amortized_ms"]
+    assert amortized["percent"] == pytest.approx(
+        100 * (amortized["admo"] - amortized["benign"]) / amortized["benign"]
+    )
+    # the report section judges it in the verdict vocabulary
+    from pimbot.analysis.document import Context
+    from pimbot.analysis.sections import device
+
+    suite = tmp_path / "suite" / device.PROFILE_RUN
+    suite.parent.mkdir(parents=True)
+    out.rename(suite)
+    section = device.profile_section(None, Context(tmp_path / "suite", tmp_path / "rep", {}))
+    (claim,) = section.claims
+    assert claim.judged.kind in verdicts.KINDS and claim.judged.kind != verdicts.NOT_RUN
+    assert "10 decisions per update" in claim.measured
+    assert any("10 (training)" in str(row[0]) for row in section.tables[0].rows)
+
+
+def test_training_cadence_follows_the_horizon():
+    """Derived from the learner and env, not a constant: a 7-step horizon makes 14."""
+    config = ProfileConfig(hidden=(8,), env_params=(("max_steps", 7),))
+    assert cadence.of_profile(config) == {
+        "episodes_per_update": 2,
+        "max_steps": 7,
+        "decisions_per_update": 14,
+    }
+
+
+def test_process_cpu_is_the_process_not_the_machine():
+    """A sleeping process reads ~0 % whatever else the machine runs; a busy one > 0."""
+    import time
+
+    start_wall, start_cpu = time.perf_counter(), process_cpu.seconds()
+    time.sleep(0.3)
+    idle = process_cpu.seconds() - start_cpu, time.perf_counter() - start_wall
+    start_wall, start_cpu = time.perf_counter(), process_cpu.seconds()
+    while time.perf_counter() - start_wall < 0.3:
+        pass
+    busy = process_cpu.seconds() - start_cpu, time.perf_counter() - start_wall
+    assert idle[0] / idle[1] < 0.1
+    assert busy[0] / busy[1] > 0.1
+    assert 1 <= process_cpu.usable_cores() <= (os.cpu_count() or 1)
+
+
+def test_process_cpu_stats_weight_windows_by_time_and_count_cores():
+    windows = [(1.0, 1.0), (1.0, 0.0), (2.0, 1.0)]  # (wall s, CPU s)
+    s = process_cpu.stats(windows, cores=2)
+    assert s["mean"] == pytest.approx(100 * 2.0 / 4.0 / 2)  # time-weighted, of 2 cores
+    assert s["max"] == pytest.approx(50.0) and s["one_core_mean"] == pytest.approx(50.0)
+    assert s["windows"] == 3 and 25.0 < s["p95"] <= 50.0
+    assert process_cpu.stats([], cores=2)["mean"] is None
+
+
+def test_sampler_rows_carry_their_segment_and_breaks_span_gaps():
+    sampler = samplers.Sampler([])
+    sampler.tags = {"phase": "steady", "controller": "admo", "cadence": 10}
+    row = sampler.sample()
+    assert (row["phase"], row["controller"], row["cadence"]) == ("steady", "admo", 10)
+    t, y = report.with_breaks(np.array([0.0, 1.0, 2.0, 6.0, 7.0]), np.arange(5.0))
+    assert t.size == 6 and np.isnan(y[3]) and 2.0 < t[3] < 6.0
+
+
+def test_config_refuses_bad_cadences():
+    for bad in ((), (0,), (2, -1), (1.5,)):
+        with pytest.raises(InvalidParameter, match="cadences"):
+            ProfileConfig(cadences=bad)
+    with pytest.raises(InvalidParameter, match="rounds"):
+        ProfileConfig(rounds=0)
+
+
+def _summary(per_round, cpu_mean=40.0, benign_cpu=40.0, judged=10, slowest_percent=5.0):
+    """A paired profile's summary with what judge_c8 reads: overheads per round at the
+    judged cadence, a 100-decision cadence at `slowest_percent`."""
+
+    def run(update_ms, cpu):
+        entry = {
+            "updates": 50,
+            "update_ms": {"mean": update_ms},
+            "amortized_ms": 1.0 + update_ms / judged,
+            "process_cpu": {"mean": cpu, "p95": cpu, "max": cpu},
+            "mean_gpu_percent": None,
+        }
+        return {"usable_cores": 2, "process_cpu": entry["process_cpu"], "mean_gpu_percent": None,
+                "cadences": {str(judged): entry}}  # fmt: skip
+
+    cadences = {
+        str(judged): {
+            "per_round_percent": list(per_round),
+            "latency_mean_ms": {"percent": 1.0},
+            "amortized_ms": {"percent": float(np.mean(per_round))},
+            "amortized_p50_ms": {"percent": float(np.mean(per_round))},
+        },
+        "100": {"amortized_ms": {"percent": slowest_percent}},
+    }
+    return {
+        "benign": run(2.0, benign_cpu),
+        "admo": run(4.0, cpu_mean),
+        "comparison": {
+            "training_cadence": {
+                "episodes_per_update": 2,
+                "max_steps": 5,
+                "decisions_per_update": 10,
+            },  # fmt: skip
+            "judged_cadence": judged,
+            "cadences": cadences,
+        },
+    }
+
+
+def test_c8_verdicts_from_the_numbers():
+    from pimbot.analysis.sections.device import judge_c8
+
+    assert judge_c8(_summary([5, 8, 6, 7, 9, 4]))[0].kind == verdicts.REPRODUCED
+    refuted = judge_c8(_summary([60, 62, 58, 61, 59, 63]))[0]
+    assert refuted.kind == verdicts.REFUTED and refuted.causes == (verdicts.BUDGET,)
+    assert "2.0x a benign" in refuted.reason  # ADMO's update 4 ms vs 2 ms
+    dearer = judge_c8(_summary([60, 62, 58, 61, 59, 63], slowest_percent=40.0))[0]
+    assert dearer.causes == (verdicts.IMPLEMENTATION,)
+    assert judge_c8(_summary([0, 50, 10, 40, 20, 30]))[0].kind == verdicts.INCONCLUSIVE
+    saturated = judge_c8(_summary([5, 8, 6, 7, 9, 4], cpu_mean=95.0))[0]
+    assert saturated.kind == verdicts.REFUTED and saturated.causes == (verdicts.IMPLEMENTATION,)
+    machine = judge_c8(_summary([5, 8, 6, 7, 9, 4], cpu_mean=95.0, benign_cpu=95.0))[0]
+    assert machine.causes == (verdicts.BUDGET,)
+    summary = _summary([5, 8, 6, 7, 9, 4])
+    summary["comparison"]["judged_cadence"] = None
+    missing = judge_c8(summary)[0]
+    assert missing.kind == verdicts.INCONCLUSIVE and "not profiled" in missing.reason

@@ -3,10 +3,18 @@
 Per decision: the observation is ready on the host → it is put on the device,
 every agent's policy and incentive heads run (one jitted function, batch 1
 per agent) → the actions are back on the host (committed). The environment is
-then stepped `action_repeat` times off the timed path. Every `update_every`
+then stepped `action_repeat` times off the timed path. Every `cadence`
 decisions one learner update (`lio.update`, with the ADMO attack on agent 0
 for the adversarial controller) runs and is timed on its own. Compilation and
 warm-up are timed separately and excluded from the steady-state samples.
+
+One profile measures several cadences (decisions per update) and, paired, both
+controllers in one process: the steady state is cut into segments, one per
+(round, cadence, controller), run interleaved (the controllers' order alternating)
+so that a change in the machine's load falls on both controllers alike. A
+segment ends on an update, so it holds whole cycles of `cadence` decisions and
+one update. The process's own CPU time (all its threads) is read in windows of
+`cpu_window_s` inside each segment (the last one up to 1.5 windows long).
 """
 
 from __future__ import annotations
@@ -22,9 +30,14 @@ import numpy as np
 
 from pimbot import attacks, envs, learners
 from pimbot.contracts.attack import NO_ATTACK
+from pimbot.profiling import process_cpu
 from pimbot.rollout import decide
 
 CONTROLLERS = ("benign", "admo")
+DEFAULT_CADENCES = (2, 10, 100)
+"""Decisions per learner update profiled by default: LIO's ER(2,1) training takes 10
+(two episodes of a 5-step horizon, `cadence.training_cadence`), a converged policy plays
+2 of them (one step per episode), and 100 is a slower online learner."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -36,29 +49,77 @@ class ProfileConfig:
     env_params: tuple[tuple[str, Any], ...] = ()
     """Environment parameters as (name, value) pairs."""
     controller: str = "benign"
-    """"benign" (plain LIO) or "admo" (ADMO attached to agent 0)."""
+    """"benign" (plain LIO) or "admo" (ADMO attached to agent 0); a paired profile runs
+    both."""
     duration_s: float = 20.0
-    """Steady-state wall time of the loop."""
+    """Steady-state wall time per controller, split evenly over the cadences and rounds."""
     hidden: tuple[int, ...] = (256, 128)
     """Hidden widths of both the policy and the incentive MLP."""
     action_repeat: int = 2
     """Environment steps per decision."""
-    update_every: int = 100
-    """Decisions between learner update steps."""
+    cadences: tuple[int, ...] = DEFAULT_CADENCES
+    """Decisions between learner update steps; each is profiled in this one run."""
+    rounds: int = 6
+    """Interleaved rounds: each runs one segment per cadence and controller."""
+    cpu_window_s: float = 0.25
+    """Wall time of one window of the process's CPU time."""
     warmup_decisions: int = 20
     """Decisions run (and discarded) after compilation, before steady state."""
     seed: int = 0
     """Root PRNG seed."""
 
+    def __post_init__(self):
+        if not self.cadences or any(
+            isinstance(c, bool) or not isinstance(c, int) or c < 1 for c in self.cadences
+        ):
+            raise envs.InvalidParameter(
+                f"cadences: must be one or more integers ≥ 1, got {self.cadences!r}"
+            )
+        if isinstance(self.rounds, bool) or not isinstance(self.rounds, int) or self.rounds < 1:
+            raise envs.InvalidParameter(f"rounds: must be an integer ≥ 1, got {self.rounds!r}")
+        if not self.cpu_window_s > 0:
+            raise envs.InvalidParameter(f"cpu_window_s: must be > 0, got {self.cpu_window_s!r}")
+
+    def segment_s(self) -> float:
+        """Steady-state wall time of one segment (one cadence, one controller, one round)."""
+        return self.duration_s / (self.rounds * len(self.cadences))
+
+
+@dataclasses.dataclass
+class Segment:
+    """One stretch of steady state at one cadence: whole cycles of decisions + update."""
+
+    round: int
+    cadence: int
+    latencies_s: np.ndarray  # [decisions]
+    update_times_s: np.ndarray  # [updates]
+    wall_s: float  # the segment's wall time, environment steps included
+    cpu_s: float  # the process's CPU time over the segment (all threads)
+    cpu_windows: np.ndarray  # [windows, 2]: (wall s, process CPU s) of each window
+
 
 @dataclasses.dataclass
 class LoopResult:
-    latencies_s: np.ndarray  # [decisions] steady-state decision latencies
-    update_times_s: np.ndarray  # [updates] steady-state learner update times
-    steady_wall_s: float  # wall time of the steady-state loop
+    segments: list[Segment]
     compile_s: dict[str, float]  # first call (compile + run) of each jitted function
     warmup_s: float  # the warm-up decisions and update after compilation
-    env_steps: int
+    env_steps: int  # environment steps of the decision loop (off the timed path)
+    played_per_update: float  # env steps the learner's own updates played, per update
+
+    def cadence(self, cadence: int) -> list[Segment]:
+        return [s for s in self.segments if s.cadence == cadence]
+
+    @property
+    def latencies_s(self) -> np.ndarray:
+        return np.concatenate([s.latencies_s for s in self.segments] or [np.zeros(0)])
+
+    @property
+    def update_times_s(self) -> np.ndarray:
+        return np.concatenate([s.update_times_s for s in self.segments] or [np.zeros(0)])
+
+    @property
+    def steady_wall_s(self) -> float:
+        return float(sum(s.wall_s for s in self.segments))
 
 
 def make_attack(controller: str, num_agents: int):
@@ -70,6 +131,18 @@ def make_attack(controller: str, num_agents: int):
     if controller == "benign":
         return NO_ATTACK
     return attacks.make("admo", num_agents, adversary=0)
+
+
+def build(config: ProfileConfig):
+    """(env, learner, learner config) of a profile: LIO with the profile's head widths."""
+    env = envs.make(config.env_id, **dict(config.env_params))
+    learner = learners.get("lio")
+    cfg = dataclasses.replace(
+        learner.default_config(envs.spec(config.env_id)),
+        policy_hidden=tuple(config.hidden),
+        incentive_hidden=tuple(config.hidden),
+    )
+    return env, learner, cfg
 
 
 def decision_fn(env, learner, cfg, attack) -> Callable:
@@ -96,85 +169,139 @@ def _timed(fn, *args):
     return out, time.perf_counter() - start
 
 
-def run(config: ProfileConfig, on_phase: Callable[[str], None] | None = None) -> LoopResult:
-    """Runs warm-up then `duration_s` of steady-state decisions; see the module docstring."""
-    env = envs.make(config.env_id, **dict(config.env_params))
-    learner = learners.get("lio")
-    cfg = dataclasses.replace(
-        learner.default_config(envs.spec(config.env_id)),
-        policy_hidden=tuple(config.hidden),
-        incentive_hidden=tuple(config.hidden),
-    )
-    attack = make_attack(config.controller, env.num_agents)
-    key = jax.random.key(config.seed)
-    init_key, env_key, act_key = jax.random.split(key, 3)
-    state = learner.init(init_key, env, cfg, attack)
-    decide = decision_fn(env, learner, cfg, attack)
-    update = jax.jit(lambda s: learner.update(s, env, cfg, attack)[0])
-    # The environment runs off the timed path (on the host CPU when there is one).
-    cpu = jax.devices("cpu")[0]
-    env_reset, env_step = jax.jit(env.reset), jax.jit(env.step)  # follow the committed key
-    env_key = jax.device_put(env_key, cpu)
+class Controller:
+    """One controller's compiled decision and update functions and its running loop
+    (learner state, environment state, keys); `segment` advances it."""
 
-    compile_s: dict[str, float] = {}
-    env_key, k = jax.random.split(env_key)
-    (obs, env_state), compile_s["env_reset"] = _timed(env_reset, k)
-    given = jnp.zeros((env.num_agents, env.num_agents), jnp.float32)
-    t = jnp.int32(0)
-    zeros = jnp.zeros(env.num_agents, jnp.int32)
-    _, compile_s["env_step"] = _timed(env_step, k, env_state, zeros)
-    _, compile_s["decision"] = _timed(
-        decide, state, act_key, jnp.asarray(np.asarray(obs)), given, t
-    )
-    state, compile_s["update"] = _timed(update, state)
+    def __init__(self, config: ProfileConfig, controller: str):
+        self.config = config
+        env, learner, cfg = build(config)
+        self.env = env
+        attack = make_attack(controller, env.num_agents)
+        init_key, env_key, self.act_key = jax.random.split(jax.random.key(config.seed), 3)
+        self.state = learner.init(init_key, env, cfg, attack)
+        self._decide = decision_fn(env, learner, cfg, attack)
+        self._update = jax.jit(lambda s: learner.update(s, env, cfg, attack)[0])
+        # The environment runs off the timed path (on the host CPU when there is one).
+        self._env_reset, self._env_step = jax.jit(env.reset), jax.jit(env.step)
+        self.env_key = jax.device_put(env_key, jax.devices("cpu")[0])
 
-    def one_decision(obs, env_state, given, env_key, act_key, steps):
-        act_key, k = jax.random.split(act_key)
+        self.compile_s: dict[str, float] = {}
+        self.env_key, k = jax.random.split(self.env_key)
+        (self.obs, self.env_state), self.compile_s["env_reset"] = _timed(self._env_reset, k)
+        self.given = jnp.zeros((env.num_agents, env.num_agents), jnp.float32)
+        zeros = jnp.zeros(env.num_agents, jnp.int32)
+        _, self.compile_s["env_step"] = _timed(self._env_step, k, self.env_state, zeros)
+        _, self.compile_s["decision"] = _timed(
+            self._decide,
+            self.state,
+            self.act_key,
+            jnp.asarray(np.asarray(self.obs)),
+            self.given,
+            jnp.int32(0),
+        )
+        self.state, self.compile_s["update"] = _timed(self._update, self.state)
+        self.steps = 0
+
+        warm_start = time.perf_counter()
+        for _ in range(config.warmup_decisions):
+            self.decision()
+        self.state, _ = _timed(self._update, self.state)
+        self.warmup_s = time.perf_counter() - warm_start
+
+    def decision(self) -> float:
+        """One timed decision, then the environment off the timed path; its latency (s)."""
+        self.act_key, k = jax.random.split(self.act_key)
         start = time.perf_counter()
-        actions, given = decide(state, k, jax.device_put(np.asarray(obs)), given, steps)
+        actions, self.given = self._decide(
+            self.state, k, jax.device_put(np.asarray(self.obs)), self.given, self.steps
+        )
         actions = np.asarray(actions)  # committed: on the host
         latency = time.perf_counter() - start
         done = False
-        for _ in range(config.action_repeat):
-            env_key, k = jax.random.split(env_key)
-            obs, env_state, _, done, _ = env_step(k, env_state, actions)
-            steps += 1
+        for _ in range(self.config.action_repeat):
+            self.env_key, k = jax.random.split(self.env_key)
+            self.obs, self.env_state, _, done, _ = self._env_step(k, self.env_state, actions)
+            self.steps += 1
             if bool(done):
                 break
         if bool(done):
-            env_key, k = jax.random.split(env_key)
-            obs, env_state = env_reset(k)
-            given = jnp.zeros_like(given)
-        return obs, env_state, given, env_key, act_key, steps, latency
+            self.env_key, k = jax.random.split(self.env_key)
+            self.obs, self.env_state = self._env_reset(k)
+            self.given = jnp.zeros_like(self.given)
+        return latency
 
-    if on_phase is not None:
-        on_phase("warmup")
-    warm_start = time.perf_counter()
-    steps = 0
-    carry = (obs, env_state, given, env_key, act_key)
-    for _ in range(config.warmup_decisions):
-        *carry, steps, _ = one_decision(*carry, steps)
-    state, _ = _timed(update, state)
-    warmup_s = time.perf_counter() - warm_start
+    def segment(self, round_index: int, cadence: int) -> Segment:
+        """Cycles of `cadence` decisions and one update until the segment's time is up."""
+        duration, window_s = self.config.segment_s(), self.config.cpu_window_s
+        latencies, updates, windows = [], [], []
+        start = time.perf_counter()
+        cpu_start = process_cpu.seconds()
+        window_wall, window_cpu = start, cpu_start
+        decisions = 0
+        while decisions == 0 or decisions % cadence or time.perf_counter() - start < duration:
+            latencies.append(self.decision())
+            decisions += 1
+            if decisions % cadence == 0:
+                self.state, update_time = _timed(self._update, self.state)
+                updates.append(update_time)
+            now = time.perf_counter()
+            if now - window_wall >= window_s:
+                cpu = process_cpu.seconds()
+                windows.append((now - window_wall, cpu - window_cpu))
+                window_wall, window_cpu = now, cpu
+        end, cpu = time.perf_counter(), process_cpu.seconds()
+        if end > window_wall:  # the last, partial window; a short one joins the one before
+            if windows and end - window_wall < window_s / 2:
+                last_wall, last_cpu = windows.pop()
+                window_wall, window_cpu = window_wall - last_wall, window_cpu - last_cpu
+            windows.append((end - window_wall, cpu - window_cpu))
+        wall = end - start
+        return Segment(
+            round=round_index,
+            cadence=cadence,
+            latencies_s=np.asarray(latencies),
+            update_times_s=np.asarray(updates),
+            wall_s=wall,
+            cpu_s=cpu - cpu_start,
+            cpu_windows=np.asarray(windows, dtype=float).reshape(-1, 2),
+        )
 
-    if on_phase is not None:
-        on_phase("steady")
-    latencies, update_times = [], []
-    start = time.perf_counter()
-    decisions = 0
-    while time.perf_counter() - start < config.duration_s:
-        *carry, steps, latency = one_decision(*carry, steps)
-        latencies.append(latency)
-        decisions += 1
-        if decisions % config.update_every == 0:
-            state, update_time = _timed(update, state)
-            update_times.append(update_time)
-    steady_wall = time.perf_counter() - start
-    return LoopResult(
-        latencies_s=np.asarray(latencies),
-        update_times_s=np.asarray(update_times),
-        steady_wall_s=steady_wall,
-        compile_s=compile_s,
-        warmup_s=warmup_s,
-        env_steps=steps,
-    )
+    def played_per_update(self) -> float:
+        """Environment steps the learner's own updates played (its `env_steps` counter),
+        per update so far."""
+        return float(self.state.env_steps) / max(int(self.state.iteration), 1)
+
+
+def run(
+    config: ProfileConfig,
+    controllers: tuple[str, ...] | None = None,
+    on_segment: Callable[[dict[str, Any]], None] | None = None,
+) -> dict[str, LoopResult]:
+    """Warms up each controller, then runs the interleaved segments; see the module
+    docstring. `controllers`: default `(config.controller,)`. `on_segment(tags)` is
+    told the phase, controller and cadence before each part runs."""
+    controllers = (config.controller,) if controllers is None else tuple(controllers)
+    tell = on_segment or (lambda tags: None)
+    loops = {}
+    for name in controllers:
+        tell({"phase": "warmup", "controller": name, "cadence": None})
+        loops[name] = Controller(config, name)
+    segments: dict[str, list[Segment]] = {name: [] for name in controllers}
+    for r in range(config.rounds):
+        for i, cadence in enumerate(config.cadences):
+            order = controllers if (r + i) % 2 == 0 else controllers[::-1]
+            for name in order:
+                tell({"phase": "steady", "controller": name, "cadence": cadence})
+                segments[name].append(loops[name].segment(r, cadence))
+    tell({"phase": "done", "controller": None, "cadence": None})
+    return {
+        name: LoopResult(
+            segments=segments[name],
+            compile_s=loop.compile_s,
+            warmup_s=loop.warmup_s,
+            env_steps=loop.steps,
+            played_per_update=loop.played_per_update(),
+        )
+        for name, loop in loops.items()
+    }

@@ -13,10 +13,13 @@ from typing import Any
 import numpy as np
 
 from pimbot.experiment import store
+from pimbot.profiling import process_cpu
 
 TRACE = "trace.csv"
 LATENCY = "latency.csv"
 UPDATES = "updates.csv"
+SEGMENTS = "segments.csv"
+CPU_WINDOWS = "cpu_windows.csv"
 SUMMARY = "summary.json"
 FIGURE = "profile.png"
 
@@ -58,12 +61,58 @@ def energy_j(rows: list[dict[str, Any]]) -> float | None:
     return float(np.sum(np.diff(t) * (p[1:] + p[:-1]) / 2))
 
 
-def summarize(config: dict, loop, rows: list[dict[str, Any]], sensors: dict[str, bool]) -> dict:
-    """The summary of one controller's run (milliseconds, seconds, watts, joules, °C)."""
+def _cadence_summary(
+    cadence: int, segments, rows: list[dict[str, Any]], cores: int
+) -> dict[str, Any]:
+    """One cadence's segments: decisions, updates, the amortized time per decision (its
+    decision latencies and update times summed, over its decisions; `amortized_p50_ms`:
+    the median decision latency + the median update time / cadence, which pre-emption by
+    other work on the machine moves less), rates and CPU."""
+    lat = np.concatenate([s.latencies_s for s in segments] or [np.zeros(0)])
+    upd = np.concatenate([s.update_times_s for s in segments] or [np.zeros(0)])
+    wall = float(sum(s.wall_s for s in segments))
+    timed = float(lat.sum() + upd.sum())
+    cpu = process_cpu.stats(
+        np.vstack([s.cpu_windows for s in segments] or [np.zeros((0, 2))]), cores
+    )
+    update = percentiles(upd)
+    return {
+        "decisions": int(lat.size),
+        "updates": int(upd.size),
+        "segments": len(segments),
+        "steady_wall_s": wall,
+        "latency_ms": percentiles(lat),
+        "update_ms": {k: update[k] for k in ("p50", "max", "mean", "count")},
+        "amortized_ms": 1e3 * timed / lat.size if lat.size else None,
+        "amortized_p50_ms": (
+            update["p50"] / cadence + percentiles(lat)["p50"] if lat.size and upd.size else None
+        ),
+        "decisions_per_s": lat.size / wall if wall > 0 else None,
+        "timed_decisions_per_s": lat.size / timed if timed > 0 else None,
+        "per_round_amortized_ms": {
+            str(s.round): 1e3 * (s.latencies_s.sum() + s.update_times_s.sum()) / s.latencies_s.size
+            for s in segments
+            if s.latencies_s.size
+        },
+        "process_cpu": cpu,
+        "mean_system_cpu_percent": _mean([r.get("cpu") for r in rows]),
+        "mean_gpu_percent": _mean([r.get("gpu") for r in rows]),
+    }
+
+
+def summarize(
+    config: dict, loop, rows: list[dict[str, Any]], sensors: dict[str, bool], cores: int
+) -> dict:
+    """The summary of one controller's run (milliseconds, seconds, watts, joules, °C):
+    pooled over its steady state, and per cadence under "cadences" (keys: the cadence
+    as a string). CPU: the process's own, in % of the `cores` it may use (mean, p95, max
+    over windows), and the machine's system-wide % (sampled) apart."""
     steady = [r for r in rows if r["phase"] == "steady"]
     decisions = int(loop.latencies_s.size)
     temps = [r["temp"] for r in rows if r.get("temp") is not None]
     update = percentiles(loop.update_times_s)
+    windows = np.vstack([s.cpu_windows for s in loop.segments] or [np.zeros((0, 2))])
+    cadences = sorted({s.cadence for s in loop.segments})
     return {
         "config": config,
         "latency_ms": percentiles(loop.latencies_s),
@@ -73,35 +122,87 @@ def summarize(config: dict, loop, rows: list[dict[str, Any]], sensors: dict[str,
         "compile_s": loop.compile_s,
         "warmup_s": loop.warmup_s,
         "env_steps": loop.env_steps,
-        "mean_cpu_percent": _mean([r.get("cpu") for r in steady]),
+        "played_decisions_per_update": loop.played_per_update,
+        "usable_cores": cores,
+        "process_cpu": process_cpu.stats(windows, cores),
+        "mean_system_cpu_percent": _mean([r.get("cpu") for r in steady]),
         "mean_gpu_percent": _mean([r.get("gpu") for r in steady]),
         "mean_power_w": _mean([r.get("power") for r in steady]),
         "energy_j": energy_j(rows),
         "peak_temp_c": max(temps) if temps else None,
         "sensors": sensors,
         "live_sensors": [name for name, live in sensors.items() if live],
+        "cadences": {
+            str(c): _cadence_summary(
+                c, loop.cadence(c), [r for r in steady if r.get("cadence") == c], cores
+            )
+            for c in cadences
+        },
     }
 
 
-def compare(benign: dict, admo: dict) -> dict:
-    """ADMO's overhead over the benign run: decision time and per update step."""
-
-    def overhead(a, b):
-        if a is None or b is None or b == 0:
-            return None
-        return {"benign": b, "admo": a, "diff": a - b, "percent": 100.0 * (a - b) / b}
-
-    update_every = benign["config"]["update_every"]
-    update = overhead(admo["update_ms"]["mean"], benign["update_ms"]["mean"])
-    amortized = None
-    if update is not None and benign["latency_ms"]["mean"]:
-        per_decision = update["diff"] / update_every
-        amortized = {
-            "ms": per_decision,
-            "percent_of_decision": 100.0 * per_decision / benign["latency_ms"]["mean"],
-        }
+def overhead(admo, benign) -> dict[str, float] | None:
+    """ADMO against benign: both values, the difference and the percent change."""
+    if admo is None or benign is None or benign == 0:
+        return None
     return {
-        "update_per_decision_ms": amortized,
+        "benign": benign,
+        "admo": admo,
+        "diff": admo - benign,
+        "percent": 100.0 * (admo - benign) / benign,
+    }
+
+
+def compare(benign: dict, admo: dict, training: dict[str, int]) -> dict:
+    """ADMO's overhead over the benign run, per cadence and at the training cadence.
+
+    The amortized overhead at a cadence is ADMO's extra time per decision with its update
+    cost spread over the decisions between updates: the difference of the amortized times
+    per decision (decision latency + update time / cadence, both measured) in % of the
+    benign one; `per_round_percent` is the same per round (the two controllers' segments
+    of a round ran back to back). `judged_cadence` is the training cadence where it was
+    profiled, else None.
+    """
+    cadences = {}
+    for key in benign["cadences"]:
+        if key not in admo["cadences"]:
+            continue
+        b, a = benign["cadences"][key], admo["cadences"][key]
+        cadences[key] = {
+            "amortized_ms": overhead(a["amortized_ms"], b["amortized_ms"]),
+            "amortized_p50_ms": overhead(a["amortized_p50_ms"], b["amortized_p50_ms"]),
+            "decisions_per_s": overhead(a["decisions_per_s"], b["decisions_per_s"]),
+            "latency_mean_ms": overhead(a["latency_ms"]["mean"], b["latency_ms"]["mean"]),
+            "update_mean_ms": overhead(a["update_ms"]["mean"], b["update_ms"]["mean"]),
+            "process_cpu_mean": overhead(a["process_cpu"]["mean"], b["process_cpu"]["mean"]),
+            "per_round_percent": [
+                100.0 * (a_ms - b["per_round_amortized_ms"][r]) / b["per_round_amortized_ms"][r]
+                for r, a_ms in a["per_round_amortized_ms"].items()
+                if r in b["per_round_amortized_ms"]
+            ],
+        }
+    judged = training["decisions_per_update"]
+    judged = judged if str(judged) in cadences else None
+    update_per_decision = None
+    if judged is not None:
+        at = cadences[str(judged)]
+        if at["update_mean_ms"] is not None and benign["latency_ms"]["mean"]:
+            per_decision = at["update_mean_ms"]["diff"] / judged
+            update_per_decision = {
+                "ms": per_decision,
+                "percent_of_decision": 100.0 * per_decision / benign["latency_ms"]["mean"],
+            }
+    return {
+        "training_cadence": {
+            **training,
+            "played_per_update": {
+                "benign": benign["played_decisions_per_update"],
+                "admo": admo["played_decisions_per_update"],
+            },
+        },
+        "judged_cadence": judged,
+        "cadences": cadences,
+        "update_per_decision_ms": update_per_decision,
         "latency_p50_ms": overhead(admo["latency_ms"]["p50"], benign["latency_ms"]["p50"]),
         "latency_mean_ms": overhead(admo["latency_ms"]["mean"], benign["latency_ms"]["mean"]),
         "update_p50_ms": overhead(admo["update_ms"]["p50"], benign["update_ms"]["p50"]),
@@ -122,26 +223,56 @@ def write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
 
 
 def write_run(run_dir: Path, loop, rows, summary: dict) -> None:
+    """trace.csv (sensor samples), latency.csv and updates.csv (one row per decision and
+    per update, with its round and cadence), segments.csv (one row per segment: counts,
+    times, the process's CPU), cpu_windows.csv and summary.json."""
     run_dir.mkdir(parents=True, exist_ok=True)
+    cores = summary["usable_cores"]
     write_csv(run_dir / TRACE, rows)
-    write_csv(
-        run_dir / LATENCY, [{"decision": i, "latency_s": v} for i, v in enumerate(loop.latencies_s)]
-    )
-    write_csv(
-        run_dir / UPDATES, [{"update": i, "time_s": v} for i, v in enumerate(loop.update_times_s)]
-    )
+    latency, updates, segments, windows = [], [], [], []
+    for s in loop.segments:
+        tag = {"round": s.round, "cadence": s.cadence}
+        latency += [
+            {"decision": len(latency) + i, **tag, "latency_s": v}
+            for i, v in enumerate(s.latencies_s)
+        ]
+        updates += [
+            {"update": len(updates) + i, **tag, "time_s": v} for i, v in enumerate(s.update_times_s)
+        ]
+        segments.append(
+            {
+                **tag,
+                "decisions": s.latencies_s.size,
+                "updates": s.update_times_s.size,
+                "wall_s": s.wall_s,
+                "decision_s": float(s.latencies_s.sum()),
+                "update_s": float(s.update_times_s.sum()),
+                "cpu_s": s.cpu_s,
+                "process_cpu_percent": 100.0 * s.cpu_s / s.wall_s / cores if s.wall_s else None,
+            }
+        )
+        windows += [
+            {**tag, "wall_s": w, "cpu_s": c, "process_cpu_percent": 100.0 * c / w / cores}
+            for w, c in s.cpu_windows
+            if w > 0
+        ]
+    write_csv(run_dir / LATENCY, [{"decision": i, **row} for i, row in enumerate(latency)])
+    write_csv(run_dir / UPDATES, [{"update": i, **row} for i, row in enumerate(updates)])
+    write_csv(run_dir / SEGMENTS, segments)
+    write_csv(run_dir / CPU_WINDOWS, windows)
     store.write_json(run_dir / SUMMARY, summary)
 
 
 def read_trace(run_dir: Path) -> dict[str, np.ndarray]:
-    """time_s, cpu, gpu, temp columns of a trace (NaN where unavailable), steady_start_s."""
+    """time_s, cpu (system-wide), process_cpu, gpu, temp columns of a trace (NaN where
+    unavailable), steady_start_s."""
     with open(Path(run_dir) / TRACE, newline="") as f:
         rows = list(csv.DictReader(f))
 
     def column(name):
         return np.array([float(r[name]) if r.get(name) else np.nan for r in rows])
 
-    out = {name: column(name) for name in ("time_s", "cpu", "gpu", "temp")}
+    out = {name: column(name) for name in ("time_s", "cpu", "process_cpu", "gpu", "temp")}
     steady = [float(r["time_s"]) for r in rows if r.get("phase") == "steady"]
     out["steady_start_s"] = steady[0] if steady else None
     return out
@@ -173,9 +304,21 @@ def truncate_idle(trace: dict[str, np.ndarray], min_idle_s: float = 5.0) -> dict
     return out
 
 
+def with_breaks(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(t, y) with a NaN point inside every gap longer than 1.5 sampling periods (the
+    other controller's segments of an interleaved profile), so a line is not drawn
+    across it."""
+    if t.size < 3:
+        return t, y
+    dt = np.diff(t)
+    gaps = np.flatnonzero(dt > 1.5 * np.median(dt))
+    return np.insert(t, gaps + 1, t[gaps] + dt[gaps] / 2), np.insert(y, gaps + 1, np.nan)
+
+
 def plot_profiles(run_dirs: dict[str, Path], out: Path, truncate_idle_gpu: bool = False) -> None:
-    """Three stacked panels (CPU %, GPU %, temperature), one column per controller;
-    the warm-up (before steady state) is shaded."""
+    """Three stacked panels (CPU %: the process's, of the cores it may use, and the
+    system's; GPU %; temperature), one column per controller; the warm-up (before
+    steady state) is shaded."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -195,7 +338,12 @@ def plot_profiles(run_dirs: dict[str, Path], out: Path, truncate_idle_gpu: bool 
             if np.all(np.isnan(trace[field])):
                 ax.text(0.5, 0.5, "unavailable", ha="center", va="center", transform=ax.transAxes)
             else:
-                ax.plot(trace["time_s"], trace[field], lw=1.2)
+                ax.plot(*with_breaks(trace["time_s"], trace[field]), lw=1.2, label="system")
+            if field == "cpu" and np.isfinite(trace["process_cpu"]).any():
+                ax.plot(
+                    *with_breaks(trace["time_s"], trace["process_cpu"]), lw=1.2, label="process"
+                )
+                ax.legend(fontsize=7, loc="upper right")
             if field != "temp":
                 ax.set_ylim(0, 105)
             steady = trace["steady_start_s"]

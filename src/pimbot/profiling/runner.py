@@ -1,8 +1,9 @@
 """One profile: the decision loop under the samplers, written to a run directory.
 
 `profile(config, out)` runs one controller; with `paired=True` benign and ADMO
-run back to back with everything else identical (out/benign, out/admo), and
-the top-level summary compares them.
+run in one process, their segments interleaved, with everything else identical
+(out/benign, out/admo), and the top-level summary compares them per cadence and
+at LIO's training cadence (`cadence.of_profile`).
 """
 
 from __future__ import annotations
@@ -12,8 +13,27 @@ from collections.abc import Callable
 from pathlib import Path
 
 from pimbot.experiment import store
-from pimbot.profiling import decision_loop, report, samplers
+from pimbot.profiling import cadence, decision_loop, process_cpu, report, samplers
 from pimbot.profiling.decision_loop import ProfileConfig
+
+
+def _summaries(config, controllers, sample_hz, sensors_factory):
+    """{controller: (summary, loop, its sampler rows)} of one profiling process."""
+    sampler = samplers.Sampler(sensors_factory(sample_hz), sample_hz)
+
+    def on_segment(tags: dict) -> None:
+        sampler.tags = dict(tags)
+
+    with sampler:
+        loops = decision_loop.run(config, controllers, on_segment)
+    cores = process_cpu.usable_cores()
+    out = {}
+    for name, loop in loops.items():
+        rows = [r for r in sampler.rows if r.get("controller") in (name, None)]
+        run_config = dataclasses.asdict(dataclasses.replace(config, controller=name))
+        summary = report.summarize(run_config, loop, rows, sampler.availability(), cores)
+        out[name] = (summary, loop, rows)
+    return out
 
 
 def profile_one(
@@ -22,19 +42,11 @@ def profile_one(
     sample_hz: float = 1.0,
     sensors_factory: Callable[[float], list] = samplers.default_sensors,
 ) -> dict:
-    """Profiles one controller; writes trace.csv, latency.csv, updates.csv, summary.json."""
-    sampler = samplers.Sampler(sensors_factory(sample_hz), sample_hz)
-
-    def on_phase(phase: str) -> None:
-        sampler.phase = phase
-
-    with sampler:
-        loop = decision_loop.run(config, on_phase)
-        sampler.phase = "done"
-    summary = report.summarize(
-        dataclasses.asdict(config), loop, sampler.rows, sampler.availability()
-    )
-    report.write_run(Path(run_dir), loop, sampler.rows, summary)
+    """Profiles one controller; writes its run directory (`report.write_run`)."""
+    ((summary, loop, rows),) = _summaries(
+        config, (config.controller,), sample_hz, sensors_factory
+    ).values()
+    report.write_run(Path(run_dir), loop, rows, summary)
     return summary
 
 
@@ -53,11 +65,15 @@ def profile(
         summary = profile_one(config, out, sample_hz, sensors_factory)
         report.plot_profiles({config.controller: out}, out / report.FIGURE, truncate_idle_gpu)
         return summary
-    runs = {}
-    for controller in decision_loop.CONTROLLERS:
-        run_config = dataclasses.replace(config, controller=controller)
-        runs[controller] = profile_one(run_config, out / controller, sample_hz, sensors_factory)
-    summary = {**runs, "comparison": report.compare(runs["benign"], runs["admo"])}
+    runs = _summaries(config, decision_loop.CONTROLLERS, sample_hz, sensors_factory)
+    for name, (summary, loop, rows) in runs.items():
+        report.write_run(out / name, loop, rows, summary)
+    training = cadence.of_profile(config)
+    summaries = {name: run[0] for name, run in runs.items()}
+    summary = {
+        **summaries,
+        "comparison": report.compare(summaries["benign"], summaries["admo"], training),
+    }
     store.write_json(out / report.SUMMARY, summary)
     report.plot_profiles(
         {c: out / c for c in decision_loop.CONTROLLERS}, out / report.FIGURE, truncate_idle_gpu

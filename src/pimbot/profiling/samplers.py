@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from pimbot.profiling import tegrastats
+from pimbot.profiling import process_cpu, tegrastats
 
 RAPL_GLOB = "/sys/class/powercap/intel-rapl*"
 
@@ -38,7 +38,8 @@ def counter_delta(previous: int, current: int, max_range: int | None) -> int:
 
 
 class PsutilSensor:
-    """Total and per-core CPU %, process RSS, CPU frequency (psutil)."""
+    """System-wide total and per-core CPU %, the process's own CPU % (all its threads;
+    100 = one core), process RSS, CPU frequency (psutil)."""
 
     name = "psutil"
 
@@ -53,18 +54,25 @@ class PsutilSensor:
         self._process = psutil.Process()
         self.cores = psutil.cpu_count() or 0
         psutil.cpu_percent(percpu=True)  # the first call only sets the reference point
+        self._process.cpu_percent()  # likewise
         self._last_cpu_read = time.monotonic()
         self.available = True
 
     def read(self) -> dict[str, Any]:
         if not self.available:
-            return {"cpu_percent": None, "rss_mb": None, "cpu_freq_mhz": None}
+            return {
+                "cpu_percent": None,
+                "process_cpu_percent": None,
+                "rss_mb": None,
+                "cpu_freq_mhz": None,
+            }
         per_core = self._psutil.cpu_percent(percpu=True)
+        process = self._process.cpu_percent()
         now = time.monotonic()
         since = now - self._last_cpu_read
         self._last_cpu_read = now
         if since < 0.05:  # too short an interval to measure: unknown, not 0
-            per_core = [None] * len(per_core)
+            per_core, process = [None] * len(per_core), None
         freq = None
         try:
             f = self._psutil.cpu_freq()
@@ -75,6 +83,7 @@ class PsutilSensor:
             "cpu_percent": sum(per_core) / len(per_core)
             if per_core and None not in per_core
             else None,
+            "process_cpu_percent": process,
             "rss_mb": self._process.memory_info().rss / 2**20,
             "cpu_freq_mhz": freq,
         }
@@ -276,7 +285,8 @@ def default_sensors(sample_hz: float) -> list:
 
 
 def combined(row: dict[str, Any]) -> dict[str, Any]:
-    """Source-independent columns for the figure and summary: cpu %, gpu %, temp, power."""
+    """Source-independent columns for the figure and summary: cpu % (system-wide), process
+    cpu % (this process, of the cores it may use), gpu %, temp, power."""
 
     def first(*names):
         return next((row[n] for n in names if row.get(n) is not None), None)
@@ -286,8 +296,10 @@ def combined(row: dict[str, Any]) -> dict[str, Any]:
     if power is None:
         parts = [row[n] for n in ("gpu_power_w", "rapl_power_w") if row.get(n) is not None]
         power = sum(parts) if parts else None
+    process = row.get("process_cpu_percent")
     return {
         "cpu": first("tegra_cpu_percent", "cpu_percent"),
+        "process_cpu": None if process is None else process / process_cpu.usable_cores(),
         "gpu": first("tegra_gpu_percent", "gpu_util_percent"),
         "temp": max(temps) if temps else None,
         "power": power,
@@ -295,13 +307,18 @@ def combined(row: dict[str, Any]) -> dict[str, Any]:
 
 
 class Sampler:
-    """Polls `sensors` every 1/`sample_hz` s in a daemon thread; rows in `self.rows`."""
+    """Polls `sensors` every 1/`sample_hz` s in a daemon thread; rows in `self.rows`.
+
+    Each row carries `self.tags` as they are when it is taken (the phase, and the
+    controller and cadence running); a sensor's interval value (CPU %) covers the time
+    since the previous sample, so a row just after a change of tags partly describes
+    the part before."""
 
     def __init__(self, sensors: list, sample_hz: float = 1.0):
         self.sensors = sensors
         self.period = 1.0 / sample_hz
         self.rows: list[dict[str, Any]] = []
-        self.phase = "warmup"
+        self.tags: dict[str, Any] = {"phase": "warmup"}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._t0 = time.monotonic()
@@ -310,7 +327,7 @@ class Sampler:
         return {s.name: bool(s.available) for s in self.sensors}
 
     def sample(self) -> dict[str, Any]:
-        row: dict[str, Any] = {"time_s": time.monotonic() - self._t0, "phase": self.phase}
+        row: dict[str, Any] = {"time_s": time.monotonic() - self._t0, **self.tags}
         for sensor in self.sensors:
             row.update(sensor.read())
         row.update(combined(row))
