@@ -114,9 +114,19 @@ def section(table: RunTable, ctx: Context) -> Section | None:
 
 
 def is_counterfactual(run: RunRecord) -> bool:
-    """A run of the clearly labelled ER variant with a reward-transfer action (an env
-    parameter naming "transfer", set): not the paper's environment."""
-    return any("transfer" in k and bool(v) for k, v in run.identity["env_params"].items())
+    """A run of the clearly labelled ER variant with a reward-transfer action
+    (escape_room_transfer-v0, or an env parameter naming "transfer", set): not the paper's
+    environment."""
+    params = run.identity["env_params"]
+    return "transfer" in run.identity["env_id"] or any(
+        "transfer" in k and bool(v) for k, v in params.items()
+    )
+
+
+def size(run: RunRecord) -> tuple:
+    """The env's size parameters, matching a counterfactual run to the paper env's."""
+    params = run.identity["env_params"]
+    return tuple(params.get(k) for k in ("n_agents", "n_players", "min_at_lever"))
 
 
 CODE_SETTINGS = {"lr": 1e-4, "gamma": 0.99}
@@ -209,10 +219,13 @@ def baseline_shortfall(runs, env, clean, base) -> verdicts.Verdict:
     others = [
         r
         for r in runs
-        if r.env == env and r.learner == LEARNER and r.condition == CLEAN and r is not clean
-    ]
+        if size(r) == size(clean) and r.learner == LEARNER and r.condition == CLEAN
+        and r is not clean
+    ]  # fmt: skip
     transfer = [r for r in others if is_counterfactual(r)]
-    settings = [r for r in others if is_code_setting(r) and not is_counterfactual(r)]
+    settings = [
+        r for r in others if is_code_setting(r) and not is_counterfactual(r) and r.env == env
+    ]
     best = max(
         (
             float(r.per_seed("eval/success").mean())
