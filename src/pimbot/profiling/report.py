@@ -338,11 +338,12 @@ def plot_profiles(run_dirs: dict[str, Path], out: Path, truncate_idle_gpu: bool 
             if np.all(np.isnan(trace[field])):
                 ax.text(0.5, 0.5, "unavailable", ha="center", va="center", transform=ax.transAxes)
             else:
-                ax.plot(*with_breaks(trace["time_s"], trace[field]), lw=1.2, label="system")
-            if field == "cpu" and np.isfinite(trace["process_cpu"]).any():
                 ax.plot(
-                    *with_breaks(trace["time_s"], trace["process_cpu"]), lw=1.2, label="process"
+                    *with_breaks(trace["time_s"], trace[field]), ".-", lw=1.2, ms=3, label="system"
                 )
+            if field == "cpu" and np.isfinite(trace["process_cpu"]).any():
+                process = with_breaks(trace["time_s"], trace["process_cpu"])
+                ax.plot(*process, ".-", lw=1.2, ms=3, label="process")
                 ax.legend(fontsize=7, loc="upper right")
             if field != "temp":
                 ax.set_ylim(0, 105)

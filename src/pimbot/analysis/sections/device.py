@@ -54,9 +54,18 @@ def plot_profile(path, controllers, out) -> bool:
                 continue
             if field == "cpu":
                 process = profile_files.with_breaks(trace["time_s"], trace["process_cpu"])
-                ax.plot(*process, lw=1.2, color="#d62728", label="process (of its cores)")
+                ax.plot(
+                    *process, ".-", lw=1.2, ms=3, color="#d62728", label="process (of its cores)"
+                )
             series = profile_files.with_breaks(trace["time_s"], trace[field])
-            ax.plot(*series, lw=1.2, color="#1f77b4", label="system" if field == "cpu" else None)
+            ax.plot(
+                *series,
+                ".-",
+                lw=1.2,
+                ms=3,
+                color="#1f77b4",
+                label="system" if field == "cpu" else None,
+            )
             if field != "temp":
                 ax.set_ylim(0, 105)
             steady = trace["steady_start_s"]
@@ -275,6 +284,7 @@ def profile_section(table: RunTable, ctx: Context) -> Section | None:
     training = comp["training_cadence"]
     played = training["played_per_update"]
     config = summary["admo"]["config"]
+    at_judged = summary["admo"]["cadences"].get(str(judged), summary["admo"])
     claim = Claim(
         "C8",
         claim_text,
@@ -287,7 +297,7 @@ def profile_section(table: RunTable, ctx: Context) -> Section | None:
         verdict,
         f"{judged} decisions/update: overhead "
         f"{_overhead_estimate(comp['cadences'].get(str(judged), {}).get('per_round_percent', []))}"
-        f" %; process CPU {fmt(summary['admo']['process_cpu']['mean'], 1)} %",
+        f" %; ADMO process CPU {fmt(at_judged['process_cpu']['mean'], 1)} % of its cores",
         numbers=numbers,
     )
     return Section(
