@@ -91,7 +91,18 @@ ATTACK_CONDITIONS: dict[str, tuple[str | None, tuple[tuple[str, Any], ...]]] = {
     "reverse": ("reverse", ()),
     "admo_stealthy": ("admo", (("mode", "stealthy"),)),
     "admo_disrupt": ("admo", (("mode", "disrupt"),)),
+    "admo_code_stealthy": ("admo_code", (("mode", "stealthy"),)),
+    "admo_code_disrupt": ("admo_code", (("mode", "disrupt"),)),
 }
+"""Run conditions by label; `admo_code_*` is the published code's ADMO (extra ordinary
+steps), `admo_*` the paper's (attacks/admo_code.py)."""
+
+ADMO_CODE_CONDITIONS = ("admo_code_disrupt", "admo_code_stealthy")
+QUICK_ADMO_CODE_CONDITIONS = ("admo_code_disrupt",)
+"""The quick suite runs the code's default mode ("adversarial" = disrupt) only."""
+ADMO_CODE_LEARNER_RATES = {"ipd": (("lr_cost", 0.0),)}
+"""admo_code's own incentive steps use the learner's rates: LIO's IPD column has no cost
+step (lr_cost 0); the Escape Room column is admo_code's default."""
 
 STAG_HUNT_SETTINGS = tuple(
     Setting(
@@ -153,8 +164,26 @@ def paper_grid(
     )
 
 
+PAPER_CONDITIONS = tuple(c for c in ATTACK_CONDITIONS if c not in ADMO_CODE_CONDITIONS)
+
+
+def admo_code_grid(setting: Setting, conditions: tuple[str, ...], scale: Scale) -> grid.Grid:
+    """`attacks/<setting>_admo_code_<mode>`: the code's ADMO with the learner's rates."""
+    rates = ADMO_CODE_LEARNER_RATES.get(setting.label, ())
+    return dataclasses.replace(
+        paper_grid("attacks", (setting,), (), scale),
+        attacks=tuple(
+            grid.AttackEntry(
+                ATTACK_CONDITIONS[c][0], tuple(sorted(ATTACK_CONDITIONS[c][1] + rates)), label=c
+            )
+            for c in conditions
+        ),
+    )
+
+
 def attack_jobs(scale: Scale) -> list[Job]:
-    """C1–C5: clean LIO and every attack on ER(2,1), ER(4,2), ER(4,3) and the 2-player IPD."""
+    """C1–C5: clean LIO and every attack on ER(2,1), ER(4,2), ER(4,3) and the 2-player IPD;
+    for C5 also the published code's ADMO (`admo_code`) beside the paper's."""
     claims = {
         "clean": ("C1", "C2", "C3", "C4", "C5"),
         "self_centered": ("C1",),
@@ -163,10 +192,13 @@ def attack_jobs(scale: Scale) -> list[Job]:
         "reverse": ("C4",),
         "admo_stealthy": ("C5",),
         "admo_disrupt": ("C5",),
+        "admo_code_stealthy": ("C5",),
+        "admo_code_disrupt": ("C5",),
     }
-    cells = grid.expand_cells(
-        paper_grid("attacks", ATTACK_SETTINGS, tuple(ATTACK_CONDITIONS), scale)
-    )
+    code = ADMO_CODE_CONDITIONS if scale.full_matrices else QUICK_ADMO_CODE_CONDITIONS
+    cells = grid.expand_cells(paper_grid("attacks", ATTACK_SETTINGS, PAPER_CONDITIONS, scale))
+    for setting in ATTACK_SETTINGS:
+        cells += grid.expand_cells(admo_code_grid(setting, code, scale))
     return [dataclasses.replace(c.job, claims=claims[c.attack.label]) for c in cells]
 
 
@@ -197,16 +229,38 @@ SPEC_BALANCE = (
 """The spec's general agent on the IPD: learned VoI, accumulated balance, 64×64 networks."""
 
 
-def _reciprocator_settings() -> list[tuple[Setting, str, tuple[str, ...]]]:
+CODE_ER_RECIPROCATOR = (
+    ("entropy_coef", 0.01),
+    ("gamma", 0.99),
+    ("grudge", "accumulated"),
+    ("lr", 1e-4),
+    ("reciprocal_weight", 5.0),
+    ("voi_lr", 1e-3),
+)
+"""The published code's Reciprocator on Escape Room (reciprocators/run_er*.py): PPO lr 1e-4,
+γ 0.99, entropy 0.01, w 5, the accumulated balance of the general agent, VoI lr 1e-3; it
+plays one episode per update, 5000 episodes (and logs no success)."""
+CODE_ER_EPISODES = 5000
+TRANSFER_ENV = "escape_room_transfer-v0"
+TRANSFER = (("transfer", 0.5),)
+"""The counterfactual pay-back channel: a door-goer may give half its step reward away."""
+
+
+def _reciprocator_settings(scale: Scale) -> list[tuple[Setting, str, tuple[str, ...]]]:
     """(setting, learner, conditions) of C7 and the 2-player IPD fidelity runs."""
 
-    def ipd(label, n, learner="reciprocator", hparams=()):
+    def ipd(label, n, learner="reciprocator", hparams=(), games=32):
         params = (("max_steps", 32), ("n_players", n))
-        return Setting(label, "ipd-v0", params, 100, 5, (("num_envs", 32),) + hparams)
+        return Setting(label, "ipd-v0", params, 100, 5, (("num_envs", games),) + hparams)
 
-    def room(label, n, m):
-        params = (("min_at_lever", m), ("n_agents", n))
-        return Setting(label, "escape_room-v0", params, 150, 5, GRUDGE)
+    def room(label, n, m, env_id="escape_room-v0", extra=()):
+        params = (("min_at_lever", m), ("n_agents", n)) + extra
+        return Setting(label, env_id, params, 150, 5, GRUDGE)
+
+    def code_room(label, episodes_per_update, iterations, eval_period):
+        hparams = tuple(sorted((("num_envs", episodes_per_update),) + CODE_ER_RECIPROCATOR))
+        params = (("min_at_lever", 1), ("n_agents", 2))
+        return Setting(label, "escape_room-v0", params, iterations, eval_period, hparams)
 
     def hunt(label, n):
         return Setting(
@@ -214,7 +268,7 @@ def _reciprocator_settings() -> list[tuple[Setting, str, tuple[str, ...]]]:
         )
 
     disrupt = ("clean", "admo_disrupt")
-    return [
+    settings = [
         (ipd("rec_ipd2", 2), "reciprocator", ("clean", "self_centered", "admo_disrupt")),
         (ipd("nl_ipd2", 2), "nl", ("clean",)),
         (ipd("rec_ipd2_spec", 2, hparams=SPEC_BALANCE), "reciprocator", ("clean",)),
@@ -226,15 +280,31 @@ def _reciprocator_settings() -> list[tuple[Setting, str, tuple[str, ...]]]:
         (hunt("rec_sh2", 2), "reciprocator", disrupt),
         (hunt("rec_sh3", 3), "reciprocator", disrupt),
         (hunt("rec_sh4", 4), "reciprocator", disrupt),
+        # C7-ER at the published code's settings, one and 128 episodes per update
+        (code_room("rec_er21_code_e1", 1, CODE_ER_EPISODES, 100), "reciprocator", disrupt),
+        (code_room("rec_er21_code_e128", 128, 150, 5), "reciprocator", disrupt),
     ]
+    if scale.full_matrices:
+        settings += [
+            # C7 IPD N = 3, 4 at the original's 2048 games per update
+            (ipd("rec_ipd3_g2048", 3, games=2048), "reciprocator", disrupt),
+            (ipd("rec_ipd4_g2048", 4, games=2048), "reciprocator", disrupt),
+            # COUNTERFACTUAL env (escape_room_transfer-v0): does a pay-back channel make
+            # Reciprocators solve ER(2,1)? NL on it is the control (transfer without reciprocity)
+            (room("rec_er21_transfer", 2, 1, TRANSFER_ENV, TRANSFER), "reciprocator", ("clean",)),
+            (room("nl_er21_transfer", 2, 1, TRANSFER_ENV, TRANSFER), "nl", ("clean",)),
+        ]
+    return settings
 
 
 def reciprocator_jobs(scale: Scale) -> list[Job]:
-    """C7: Reciprocators clean vs ADMO (ER, IPD N = 2, 3, 4, Stag Hunt N = 2, 3, 4) and the
-    2-player IPD fidelity runs (NL vs NL, NL vs Reciprocator, the spec's balance)."""
+    """C7: Reciprocators clean vs ADMO (ER, IPD N = 2, 3, 4, Stag Hunt N = 2, 3, 4), ER(2,1)
+    at the published code's settings (1 and 128 episodes per update), and the 2-player IPD
+    fidelity runs (NL vs NL, NL vs Reciprocator, the spec's balance); the full suite adds
+    IPD N = 3, 4 at 2048 games per update and the counterfactual transfer Escape Room."""
     return [
         dataclasses.replace(job, claims=("C7",))
-        for setting, learner, conditions in _reciprocator_settings()
+        for setting, learner, conditions in _reciprocator_settings(scale)
         for job in grid.expand(
             paper_grid("reciprocators", (setting,), conditions, scale, learner=learner)
         )
@@ -326,6 +396,7 @@ def robot_jobs(scale: Scale) -> list[Job]:
         )
         for job in attack_jobs(scale)
         if job.spec.env_id == "escape_room-v0"
+        and job.spec.attack != "admo_code"  # compared in training only
         and (scale.full_matrices or job.name.split("_", 1)[1] in QUICK_ROBOT_CONDITIONS)
     ]
 
