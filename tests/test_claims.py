@@ -9,6 +9,7 @@ nothing is trained): they test the rules, not any measured figure.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 from pathlib import Path
 
@@ -28,9 +29,22 @@ def er(n: int, m: int) -> dict:
     return {"max_steps": 5, "min_at_lever": m, "n_agents": n, "randomize_start": False}
 
 
-def write_run(root: Path, name: str, curve, *, env_id=ER, env_params=None, attack=None,
-              attack_params=None, learner="lio", seeds=5, horizon=10_000, period=500,
-              learner_config=None, source=None) -> runs.RunRecord:  # fmt: skip
+def write_run(
+    root: Path,
+    name: str,
+    curve,
+    *,
+    env_id=ER,
+    env_params=None,
+    attack=None,
+    attack_params=None,
+    learner="lio",
+    seeds=5,
+    horizon=10_000,
+    period=500,
+    learner_config=None,
+    source=None,
+) -> runs.RunRecord:
     """A finished run whose metric `column` of seed s at iteration t is curve(s, t)[column]."""
     env_params = env_params or er(2, 1)
     n = env_params.get("n_agents", env_params.get("n_players", 2))
@@ -87,9 +101,12 @@ def test_intervals_are_scipy_bca_at_five_seeds_and_the_range_below():
     many = np.array([0.1, 0.4, 0.35, 0.8, 0.55, 0.2, 0.9])
     interval = statistics.mean_interval(many)
     expected = stats.bootstrap(
-        (many,), np.mean, method="BCa", n_resamples=statistics.RESAMPLES,
+        (many,),
+        np.mean,
+        method="BCa",
+        n_resamples=statistics.RESAMPLES,
         rng=np.random.default_rng(0),
-    ).confidence_interval  # fmt: skip
+    ).confidence_interval
     assert interval.kind == "ci"
     assert (interval.lo, interval.hi) == pytest.approx((expected.low, expected.high))
     assert str(estimate(many)).count("[") == 1
@@ -137,8 +154,13 @@ def test_success_reachable_with_an_idle_agent_follows_the_env_rules():
 
 def test_c3_structural_parts_and_evidence(tmp_path):
     def bypass(name, params, success):
-        return write_run(tmp_path, f"attacks/{name}", const(**{"eval/success": success}),
-                         env_params=params, attack="bypass")  # fmt: skip
+        return write_run(
+            tmp_path,
+            f"attacks/{name}",
+            const(**{"eval/success": success}),
+            env_params=params,
+            attack="bypass",
+        )
 
     good = [bypass("er21", er(2, 1), 0.0), bypass("er43", er(4, 3), 0.0)]
     claim = attack_claims.c3(data_of([*good, bypass("er42", er(4, 2), 0.95)]))
@@ -154,13 +176,23 @@ def test_c3_structural_parts_and_evidence(tmp_path):
 
 def test_c4_at_the_paper_budget_and_the_late_rise(tmp_path):
     def reverse(name, params, curve, horizon):
-        return write_run(tmp_path, f"attacks/{name}", curve, env_params=params,
-                         attack="reverse", horizon=horizon, period=1000)  # fmt: skip
+        return write_run(
+            tmp_path,
+            f"attacks/{name}",
+            curve,
+            env_params=params,
+            attack="reverse",
+            horizon=horizon,
+            period=1000,
+        )
 
-    late = reverse("er21", er(2, 1), lambda s, t: {"eval/success": 0.0 if t <= 25_000 else 0.5},
-                   50_000)  # fmt: skip
-    rest = [reverse("er42", er(4, 2), const(**{"eval/success": 1.0}), 25_000),
-            reverse("er43", er(4, 3), const(**{"eval/success": 0.0}), 25_000)]  # fmt: skip
+    late = reverse(
+        "er21", er(2, 1), lambda s, t: {"eval/success": 0.0 if t <= 25_000 else 0.5}, 50_000
+    )
+    rest = [
+        reverse("er42", er(4, 2), const(**{"eval/success": 1.0}), 25_000),
+        reverse("er43", er(4, 3), const(**{"eval/success": 0.0}), 25_000),
+    ]
     main, longer = attack_claims.c4(data_of([late, *rest]))
     assert main.judged.kind == verdicts.AT_BUDGET
     assert longer.id == "C4b" and longer.judged.causes == (verdicts.BUDGET,)
@@ -174,11 +206,23 @@ def test_c1b_speed_by_both_criteria_at_equal_horizon(tmp_path):
     def run(name, condition, params, at, seeds=5):
         attack = None if condition == "clean" else "self_centered"
         curve = lambda s, t: {"eval/return_ratio": 1.0 if t >= at else 0.0}  # noqa: E731
-        return write_run(tmp_path, f"attacks/{name}", curve, env_params=params, attack=attack,
-                         seeds=seeds, horizon=30_000, period=500)  # fmt: skip
+        return write_run(
+            tmp_path,
+            f"attacks/{name}",
+            curve,
+            env_params=params,
+            attack=attack,
+            seeds=seeds,
+            horizon=30_000,
+            period=500,
+        )
 
-    fast = [run("a", "clean", er(2, 1), 20_000), run("b", "self", er(2, 1), 12_500),
-            run("c", "clean", er(4, 2), 14_000), run("d", "self", er(4, 2), 10_500)]  # fmt: skip
+    fast = [
+        run("a", "clean", er(2, 1), 20_000),
+        run("b", "self", er(2, 1), 12_500),
+        run("c", "clean", er(4, 2), 14_000),
+        run("d", "self", er(4, 2), 10_500),
+    ]
     claim = attack_claims.c1b(data_of(fast))
     assert claim.judged.kind == verdicts.REPRODUCED
     # Smoothed over 10 evaluations, a step at 20k (12.5k) first reaches 0.9 nine points later.
@@ -203,14 +247,22 @@ def test_c5_margin_against_the_symmetric_baseline_and_own_exit_success(tmp_path)
         values = {"eval/adversary_margin_env": margin, "eval/success": success, "eval/steps": 2.0}
         values |= {f"eval/exit_success/agent_{i}": (own if i == 0 else 0.5) for i in range(n)}
         given = {"mode": mode} if attack else None
-        return write_run(tmp_path, f"attacks/{name}", const(**values), env_params=params,
-                         attack=attack, attack_params=given)  # fmt: skip
+        return write_run(
+            tmp_path,
+            f"attacks/{name}",
+            const(**values),
+            env_params=params,
+            attack=attack,
+            attack_params=given,
+        )
 
     records = []
     for n, m in ((2, 1), (4, 2), (4, 3)):
-        records += [run(f"c{n}{m}", None, er(n, m), lambda s: (-10.0, 10.0)[s % 2], 0.5, 0.9),
-                    run(f"s{n}{m}", "admo", er(n, m), 3.0, 0.9, 0.9),
-                    run(f"d{n}{m}", "admo", er(n, m), 0.0, 0.5, 0.1, "disrupt")]  # fmt: skip
+        records += [
+            run(f"c{n}{m}", None, er(n, m), lambda s: (-10.0, 10.0)[s % 2], 0.5, 0.9),
+            run(f"s{n}{m}", "admo", er(n, m), 3.0, 0.9, 0.9),
+            run(f"d{n}{m}", "admo", er(n, m), 0.0, 0.5, 0.1, "disrupt"),
+        ]
     claim = attack_claims.c5(data_of(records))
     assert claim.judged.kind == verdicts.REPRODUCED, claim.judged
     # Disrupt is judged only where the task is non-redundant (not in ER(4,2)).
@@ -224,15 +276,27 @@ def test_c6_the_code_metric_as_the_cause(tmp_path):
 
     def run(name, attack, success, captures, metric):
         def curve(s, t):
-            return {"eval/success": success * t / 5000, "eval/stag_captures": captures * t / 5000,
-                    code: metric}  # fmt: skip
+            return {
+                "eval/success": success * t / 5000,
+                "eval/stag_captures": captures * t / 5000,
+                code: metric,
+            }
 
-        return write_run(tmp_path, f"stag_hunt/{name}", curve, env_id="stag_hunt-v0",
-                         env_params={"n_players": 2}, attack=attack, horizon=5000, period=100,
-                         attack_params={"mode": "disrupt"} if attack else None)  # fmt: skip
+        return write_run(
+            tmp_path,
+            f"stag_hunt/{name}",
+            curve,
+            env_id="stag_hunt-v0",
+            env_params={"n_players": 2},
+            attack=attack,
+            horizon=5000,
+            period=100,
+            attack_params={"mode": "disrupt"} if attack else None,
+        )
 
-    parts, _ = stag_hunt.judge_env("SH(2)", run("c", None, 0.6, 0.3, 0.6),
-                                   run("a", "admo", 0.4, 0.1, 0.02))  # fmt: skip
+    parts, _ = stag_hunt.judge_env(
+        "SH(2)", run("c", None, 0.6, 0.3, 0.6), run("a", "admo", 0.4, 0.1, 0.02)
+    )
     assert parts["SH(2) success rises"].kind == verdicts.REPRODUCED
     assert parts["SH(2) stag captures rise"].kind == verdicts.REPRODUCED
     assert parts["SH(2) ADMO → 0"].causes == (verdicts.PAPER_METRIC,)
@@ -242,10 +306,19 @@ def test_c7_er_shortfall_classified_by_the_transfer_counterfactual(tmp_path):
     def run(name, success, env_id=ER, attack=None, config=None):
         params = er(4, 2) | ({"transfer": 0.5} if "transfer" in env_id else {})
         config = config or {"grudge": "one_step"}  # the suite's C7 runs
-        return write_run(tmp_path, f"reciprocators/{name}", const(**{"eval/success": success}),
-                         env_id=env_id, env_params=params, learner="reciprocator",
-                         attack=attack, attack_params={"mode": "disrupt"} if attack else None,
-                         horizon=100, period=5, learner_config=config)  # fmt: skip
+        return write_run(
+            tmp_path,
+            f"reciprocators/{name}",
+            const(**{"eval/success": success}),
+            env_id=env_id,
+            env_params=params,
+            learner="reciprocator",
+            attack=attack,
+            attack_params={"mode": "disrupt"} if attack else None,
+            horizon=100,
+            period=5,
+            learner_config=config,
+        )
 
     base = [run("clean", 0.2), run("admo", 0.05, attack="admo")]
     assert reciprocators.c7(base).judged.causes == (verdicts.IMPLEMENTATION,)
@@ -258,8 +331,10 @@ def test_c7_er_shortfall_classified_by_the_transfer_counterfactual(tmp_path):
 def test_claims_table_at_the_quick_budget():
     from pimbot.experiment import presets
 
-    jobs = [{"name": j.name, "claims": list(j.claims), "status": "finished"}
-            for j in presets.suite(quick=True)]  # fmt: skip
+    jobs = [
+        {"name": j.name, "claims": list(j.claims), "status": "finished"}
+        for j in presets.suite(quick=True)
+    ]
     learning = Claim("C3", "c", "r", "m", verdicts.refuted(verdicts.IMPLEMENTATION, "0.3"))
     rules = Claim("C4", "d", "r", "m", verdicts.refuted(verdicts.PAPER_ENVIRONMENT, "idle"))
     sections = [Section("s", claims=[learning, rules])]
@@ -271,3 +346,39 @@ def test_claims_table_at_the_quick_budget():
     jobs[0]["status"] = "failed"
     rows = {c.id: c for c in report.claims_table(sections, {"suite": "quick", "jobs": jobs})}
     assert any(c.judged.kind == verdicts.NOT_RUN for c in rows.values())
+
+
+def test_original_code_rows_at_the_common_horizon(tmp_path):
+    """The original code's log and pimbot's run are read by the same metric code, both cut
+    at the horizon they share; the original's own attack parameters are named."""
+
+    def curve(s, t):
+        return {"eval/success": 1.0 if t <= 5000 else 0.0}
+
+    ours = write_run(
+        tmp_path, "attacks/er42_fake", curve, env_params=er(4, 2), attack="fake_incentive"
+    )
+    log = write_run(
+        tmp_path,
+        "original/er42_bignum",
+        const(**{"eval/success": 0.5}),
+        env_params=er(4, 2),
+        attack="fake_incentive",
+        attack_params={"amount": 10.0},
+        horizon=5000,
+        seeds=2,
+        source=runs.ORIGINAL_CODE,
+    )
+    log = dataclasses.replace(log, condition="fake_incentive(amount=10)")  # as its config says
+    table = runs.RunTable((ours,), (log,))
+    assert runs.load_table(tmp_path).original[0].source == runs.ORIGINAL_CODE
+    data = attack_claims.Runs(table, {(ours.env, ours.condition): ours})
+    row, value = data.compare("q", "~0", ours, "eval/success")
+    assert row.horizon == "5,000 it" and row.pimbot.startswith("1.000")
+    assert row.original.startswith("0.500") and "(fake_incentive(amount=10))" in row.original
+    assert value.mean == 0.5
+    # Without a log: pimbot at its own horizon, "no log" in the table.
+    row, value = attack_claims.Runs(runs.RunTable((ours,)), {}).compare(
+        "q", "~0", ours, "eval/success"
+    )
+    assert (row.horizon, row.original, value) == ("10,000 it", None, None)

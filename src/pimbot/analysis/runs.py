@@ -107,15 +107,28 @@ class RunTable:
     """Runs converted from the original code's logs (source "original code"): the claims'
     original-code column, never a section's own rows."""
 
-    def original_for(self, env: str, condition: str, learner: str = "lio") -> RunRecord | None:
-        """The original code's run of one env label, condition and learner, if a log has it
-        (the longest of several: comparisons cut it at pimbot's horizon)."""
-        matches = [
-            r
-            for r in self.original
-            if r.env == env and r.condition == condition and r.learner == learner
-        ]
-        return max(matches, key=lambda r: (r.iterations, r.seeds), default=None)
+    def original_for(
+        self,
+        env: str,
+        condition: str,
+        learner: str = "lio",
+        horizon: int | None = None,
+        attack: str | None = None,
+    ) -> RunRecord | None:
+        """The original code's run of one env label and learner with this condition (or, if
+        none, with the same `attack` under other parameters: its 10-per-step fake incentive);
+        of several, the shortest that reaches `horizon`, else the longest, then the most
+        seeds (comparisons are made at the common horizon)."""
+        mine = [r for r in self.original if r.env == env and r.learner == learner]
+        matches = [r for r in mine if r.condition == condition]
+        if not matches and attack is not None:
+            matches = [r for r in mine if r.attack == attack]
+        if not matches:
+            return None
+        reach = [r for r in matches if horizon is not None and r.iterations >= horizon]
+        if reach:
+            return min(reach, key=lambda r: (r.iterations, -r.seeds))
+        return max(matches, key=lambda r: (r.iterations, r.seeds))
 
     def group(self, name: str) -> list[RunRecord]:
         return [r for r in self.records if r.group == name]

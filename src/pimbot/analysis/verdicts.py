@@ -134,8 +134,9 @@ def at_quick_budget(verdict: Verdict) -> Verdict:
     """What the quick suite may conclude: learning-evidence refutations become inconclusive
     (the reason kept), structural ones stay; every verdict is marked "quick budget"."""
     if verdict.kind == REFUTED and not set(verdict.causes) <= set(BUDGET_FREE):
-        return Verdict(INCONCLUSIVE, f"quick budget; as measured: {verdict.reason}",
-                       qualifier="quick budget")  # fmt: skip
+        return Verdict(
+            INCONCLUSIVE, f"quick budget; as measured: {verdict.reason}", qualifier="quick budget"
+        )
     if verdict.kind == NOT_RUN:
         return verdict
     return dataclasses.replace(verdict, qualifier="quick budget")

@@ -26,7 +26,7 @@ from pimbot.analysis import judging, verdicts
 from pimbot.analysis.document import Claim, Comparison
 from pimbot.analysis.judging import PAPER_ATTACK_BUDGET, Curves, iteration_text
 from pimbot.analysis.runs import CLEAN, RunRecord, RunTable
-from pimbot.analysis.tables import Table, difference, estimate
+from pimbot.analysis.tables import Estimate, Table, difference, estimate
 from pimbot.analysis.verdicts import Verdict
 
 ROOMS = ("ER(2,1)", "ER(4,2)", "ER(4,3)")
@@ -60,8 +60,58 @@ class Runs:
             self.curves[run.name] = judging.read_curves(run.path)
         return self.curves[run.name]
 
-    def original(self, env: str, condition: str) -> RunRecord | None:
-        return self.table.original_for(env, condition)
+    reachable_cache: dict[tuple, bool] = dataclasses.field(default_factory=dict)
+
+    def original(self, env: str, condition: str, horizon: int | None = None) -> RunRecord | None:
+        run = self.get(env, condition)
+        attack = run.attack if run is not None else None
+        return self.table.original_for(env, condition, horizon=horizon, attack=attack)
+
+    def compare(
+        self,
+        quantity: str,
+        paper: str,
+        run: RunRecord,
+        column: str,
+        until: int | None = None,
+        **fmt,
+    ) -> tuple[Comparison, Estimate | None]:
+        """The paper | original code | pimbot row of `column`'s final value: pimbot's run and
+        the original code's log of the same env and condition, both cut at their common
+        horizon (≤ `until`); and the original's value (None without a log)."""
+        ours = self.of(run)
+        limit = min(ours.horizon, until if until is not None else ours.horizon)
+        original = self.original(run.env, run.condition, limit)
+        theirs = self.of(original) if original is not None else None
+        if theirs is None or not theirs.has(column):
+            value = estimate(ours.final(column, limit), **fmt)
+            text = None if original is None else "not logged"
+            return Comparison(quantity, f"{limit:,} it", paper, text, str(value)), None
+        common = min(limit, theirs.horizon)
+        value = estimate(theirs.final(column, common), **fmt)
+        label = "" if original.condition == run.condition else f" ({original.condition})"
+        seeds = f", {original.seeds} distinct logs"
+        row = Comparison(
+            quantity,
+            f"{common:,} it",
+            paper,
+            f"{value}{label}{seeds}",
+            str(estimate(ours.final(column, common), **fmt)),
+        )
+        return row, value
+
+    def success_reachable(self, run: RunRecord) -> bool:
+        """Whether the env's rules let the others succeed with `run`'s adversary idle."""
+        key = (
+            run.identity["env_id"],
+            tuple(sorted(run.identity["env_params"].items())),
+            run.adversary,
+        )
+        if key not in self.reachable_cache:
+            self.reachable_cache[key] = judging.success_reachable_with_idle(
+                key[0], dict(key[1]), key[2]
+            )
+        return self.reachable_cache[key]
 
     def conditions(self, attack: str) -> list[str]:
         """Conditions of runs whose config names `attack` (admo_stealthy, admo_code_…)."""
@@ -89,25 +139,19 @@ def c1a(data: Runs) -> Claim:
             continue
         margin = estimate(run.per_seed("eval/adversary_margin_env"), 2, signed=True)
         judged = judging.above(margin, 0.0, "margin")
-        original = data.original(env, "self_centered")
-        original_margin = (
-            estimate(original.per_seed("eval/adversary_margin_env"), 2, signed=True)
-            if original
-            else None
+        row, original = data.compare(
+            f"{env} self-centered margin",
+            "> 0",
+            run,
+            "eval/adversary_margin_env",
+            digits=2,
+            signed=True,
         )
         if judged is None:
-            agrees = None if original_margin is None else original_margin.lo > 0
+            agrees = None if original is None else original.lo > 0
             judged = judging.disagreement(f"margin {margin} not above 0", agrees)
         parts[env] = judged
-        numbers.append(
-            Comparison(
-                f"{env} self-centered margin",
-                f"{run.iterations:,} it",
-                "> 0",
-                None if original_margin is None else str(original_margin),
-                str(margin),
-            )
-        )
+        numbers.append(row)
     return Claim(
         "C1a",
         "self-centered: the adversary's return is above the others'",
@@ -148,16 +192,7 @@ def c1b(data: Runs) -> Claim:
             f"{_iters(first_a)} / {_iters(strict_a)}, self-centered {_iters(first_b)} / "
             f"{_iters(strict_b)}, first crossing / strict): {text}"
         )
-        for kind, (c, s) in medians.items():
-            numbers.append(
-                Comparison(
-                    f"{env} convergence clean → self-centered ({kind})",
-                    f"{horizon:,} it",
-                    f"{paper_clean / 1000:g}k → {paper_selfish / 1000:g}k",
-                    _original_speed(data, env, column, horizon, kind),
-                    f"{iteration_text(c)} → {iteration_text(s)}",
-                )
-            )
+        numbers += _speed_rows(data, env, column, (a, b), horizon, (paper_clean, paper_selfish))
         parts[env] = _speed_verdict(env, medians, horizon, paper_clean, len(a.seeds), len(b.seeds))
     return Claim(
         "C1b",
@@ -192,29 +227,41 @@ def _speed_verdict(env, medians, horizon, paper_clean, n_clean, n_selfish) -> Ve
     return judging.disagreement(f"not faster by {' and '.join(slower)}: {text}", None)
 
 
-def _original_speed(data: Runs, env, column, horizon, kind) -> str | None:
-    clean, selfish = data.original(env, CLEAN), data.original(env, "self_centered")
-    if clean is None and selfish is None:
-        return None
-    out = []
-    for run in (clean, selfish):
-        if run is None:
-            out.append("no log")
-            continue
-        curves = data.of(run)
-        if not curves.has(column):
-            out.append("not logged")
-            continue
-        strict, first = curves.convergence(column, min(horizon, curves.horizon))
-        out.append(iteration_text(judging.median_iteration(first if kind != "strict" else strict)))
-    return " → ".join(out)
+def _speed_rows(data: Runs, env, column, ours, horizon, paper) -> list[Comparison]:
+    """paper | original code | pimbot rows of both speed criteria, clean → self-centered, at
+    the horizon pimbot's two runs and the original code's two logs share."""
+    logs = [data.original(env, c, horizon) for c in (CLEAN, "self_centered")]
+    theirs = [data.of(r) if r is not None else None for r in logs]
+    usable = all(t is not None and t.has(column) for t in theirs)
+    common = min([horizon] + ([t.horizon for t in theirs] if usable else []))
+    rows = []
+    for k, kind in enumerate(("first crossing", "strict")):
+
+        def medians(curves, k=k):
+            out = []
+            for c in curves:
+                strict, first = c.convergence(column, common)
+                out.append(iteration_text(judging.median_iteration((first, strict)[k])))
+            return " → ".join(out)
+
+        original = medians(theirs) if usable else (None if logs == [None, None] else "no pair")
+        rows.append(
+            Comparison(
+                f"{env} convergence clean → self-centered ({kind})",
+                f"{common:,} it",
+                f"{paper[0] / 1000:g}k → {paper[1] / 1000:g}k",
+                original,
+                medians(ours),
+            )
+        )
+    return rows
 
 
 # --- C2 ---------------------------------------------------------------------------------
 
 
 def c2(data: Runs) -> Claim:
-    parts = {}
+    parts, numbers = {}, []
     for env in ROOMS:
         run = data.get(env, "fake_incentive")
         if run is None:
@@ -224,10 +271,13 @@ def c2(data: Runs) -> Claim:
         final = estimate(run.per_seed("eval/success"))
         peak = curves.early_peak("eval/success", EARLY_FRACTION)
         text = f"early peak {peak:.2f}, final {final}"
+        row, original = data.compare(f"{env} fake-incentive success", "~0", run, "eval/success")
+        numbers.append(row)
         if peak is not None and peak >= EARLY_PEAK and final.mean <= LOW:
             parts[env] = verdicts.reproduced(text)
         else:
-            parts[env] = judging.disagreement(text, None)
+            agrees = None if original is None else original.mean <= LOW
+            parts[env] = judging.disagreement(text, agrees)
     return Claim(
         "C2",
         "fake incentive (C = 50): early, unstable successes, then ~0 success in ER",
@@ -237,6 +287,7 @@ def c2(data: Runs) -> Claim:
         _parts_text(parts),
         verdicts.combine(parts),
         _short(parts),
+        numbers,
     )
 
 
@@ -244,18 +295,19 @@ def c2(data: Runs) -> Claim:
 
 
 def c3(data: Runs) -> Claim:
-    parts, lines = {}, []
+    parts, lines, numbers = {}, [], []
     for env in ROOMS:
         run = data.get(env, "bypass")
         if run is None:
             parts[env] = _missing(env)
             continue
         params = run.identity["env_params"]
-        reachable = judging.success_reachable_with_idle(
-            run.identity["env_id"], params, run.adversary
-        )
+        reachable = data.success_reachable(run)
         structure = judging.structure_text(params, run.adversary, reachable)
         final = estimate(run.per_seed("eval/success"))
+        claimed = "solved" if reachable else "0"
+        row, original = data.compare(f"{env} bypass success", claimed, run, "eval/success")
+        numbers.append(row)
         if not reachable:  # structural: the env's rules decide; the runs must agree
             lines.append(f"{env} structural: {structure}; measured {final}")
             if final.hi > 0:
@@ -270,12 +322,7 @@ def c3(data: Runs) -> Claim:
             if final.mean >= SOLVED:
                 parts[env] = verdicts.reproduced(f"evidence, solved: {final}")
             else:
-                original = data.original(env, "bypass")
-                agrees = (
-                    None
-                    if original is None
-                    else float(np.mean(original.per_seed("eval/success"))) >= SOLVED
-                )
+                agrees = None if original is None else original.mean >= SOLVED
                 parts[env] = judging.disagreement(
                     f"evidence: success {final} not ≥ {SOLVED:g}", agrees
                 )
@@ -288,6 +335,7 @@ def c3(data: Runs) -> Claim:
         "; ".join(lines) or _parts_text(parts),
         verdicts.combine(parts),
         _short(parts),
+        numbers,
     )
 
 
@@ -311,9 +359,10 @@ def c4(data: Runs) -> list[Claim]:
         def holds(e, want_low=want_low):
             return e.mean <= LOW if want_low else e.mean >= SOLVED
 
-        lines.append(f"{env}: at {cut:,} it {budget}" + (
-            f", at {curves.horizon:,} it {full}" if curves.horizon > PAPER_ATTACK_BUDGET else ""
-        ))  # fmt: skip
+        lines.append(
+            f"{env}: at {cut:,} it {budget}"
+            + (f", at {curves.horizon:,} it {full}" if curves.horizon > PAPER_ATTACK_BUDGET else "")
+        )
         if curves.horizon < PAPER_ATTACK_BUDGET and not holds(budget):
             at_budget[env] = verdicts.inconclusive(
                 f"{curves.horizon:,} it < the paper's {PAPER_ATTACK_BUDGET:,}: {budget}"
@@ -334,15 +383,8 @@ def c4(data: Runs) -> list[Claim]:
                     f"{rise:+.3f} after the paper's {PAPER_ATTACK_BUDGET:,}",
                 )
             )
-        numbers.append(
-            Comparison(
-                f"{env} reverse success",
-                f"{cut:,} it",
-                "0" if want_low else "solved",
-                _original_final(data, env, "reverse", cut),
-                str(budget),
-            )
-        )
+        claimed = "0" if want_low else "solved"
+        numbers.append(data.compare(f"{env} reverse success", claimed, run, "eval/success", cut)[0])
     main = verdicts.combine(at_budget)
     if main.kind == verdicts.REPRODUCED and any(
         v.kind == verdicts.REFUTED for v in longer.values()
@@ -376,16 +418,6 @@ def c4(data: Runs) -> list[Claim]:
     return out
 
 
-def _original_final(data: Runs, env, condition, until) -> str | None:
-    run = data.original(env, condition)
-    if run is None:
-        return None
-    curves = data.of(run)
-    return (
-        str(estimate(curves.final("eval/success", until))) if curves.has("eval/success") else None
-    )
-
-
 # --- C5 ---------------------------------------------------------------------------------
 
 
@@ -417,8 +449,18 @@ def admo_parts(data: Runs, condition_of: dict[str, str]) -> tuple[dict[str, Verd
                 float(run.per_seed("eval/steps").mean()),
                 float(base.per_seed("eval/steps").mean()),
             )
-            rows.append([env, condition, run.seeds, margin, own, own_gain, d_success,
-                         f"{steps:.2f} ({(steps - clean_steps) / clean_steps:+.0%})"])  # fmt: skip
+            rows.append(
+                [
+                    env,
+                    condition,
+                    run.seeds,
+                    margin,
+                    own,
+                    own_gain,
+                    d_success,
+                    f"{steps:.2f} ({(steps - clean_steps) / clean_steps:+.0%})",
+                ]
+            )
             if mode == "stealthy" or len(condition_of) == 1:
                 parts[f"{env} {condition} margin"] = judging.above(
                     margin, 0.0, "margin"
@@ -433,20 +475,15 @@ def admo_parts(data: Runs, condition_of: dict[str, str]) -> tuple[dict[str, Verd
                         verdicts.IMPLEMENTATION,
                         f"own exit success {own} not above the clean per-agent mean ({own_gain})",
                     )
-            if mode == "disrupt":
-                params = run.identity["env_params"]
-                redundant = judging.success_reachable_with_idle(
-                    run.identity["env_id"], params, run.adversary
-                )
-                if not redundant:
-                    parts[f"{env} {condition} disrupts"] = (
-                        verdicts.reproduced(f"Δ success {d_success}")
-                        if d_success.hi < 0
-                        else verdicts.refuted(
-                            verdicts.IMPLEMENTATION,
-                            f"non-redundant task, Δ success {d_success} not below 0",
-                        )
+            if mode == "disrupt" and not data.success_reachable(run):
+                parts[f"{env} {condition} disrupts"] = (
+                    verdicts.reproduced(f"Δ success {d_success}")
+                    if d_success.hi < 0
+                    else verdicts.refuted(
+                        verdicts.IMPLEMENTATION,
+                        f"non-redundant task, Δ success {d_success} not below 0",
                     )
+                )
             change = abs(steps - clean_steps) / clean_steps
             if mode == "disrupt" and len(condition_of) > 1:
                 continue  # the paper's ADMO raises its own gain: steps judged on that mode
@@ -497,13 +534,16 @@ def c5(data: Runs) -> Claim:
     parts, _ = attacks["admo"]
     code_parts = attacks.get("admo_code", ({}, []))[0]
     parts = {name: _classified(name, v, code_parts) for name, v in parts.items()}
-    shapes = []
+    shapes, met = [], {}
     for attack, (mine, _) in attacks.items():
-        met = sum(v.kind == verdicts.REPRODUCED for v in mine.values())
-        shapes.append(f"{attack} {met}/{len(mine)} parts")
+        met[attack] = sum(v.kind == verdicts.REPRODUCED for v in mine.values()) / max(len(mine), 1)
+        shapes.append(f"{attack} {met[attack]:.0%} of its parts")
     measured = _parts_text(parts)
     if "admo_code" in attacks:
-        measured += "; admo_code: " + _parts_text(code_parts)
+        closer = max(met, key=met.get) if len(set(met.values())) > 1 else "neither"
+        measured += (
+            f"; admo_code: {_parts_text(code_parts)}; closer to the paper's shapes: {closer}"
+        )
     else:
         measured += "; admo_code (the published code's scheduler): no runs in this suite"
     return Claim(
@@ -526,9 +566,13 @@ def _classified(name: str, verdict: Verdict, code_parts: dict[str, Verdict]) -> 
     if verdict.kind != verdicts.REFUTED:
         return verdict
     code_name = next(
-        (k for k in code_parts if k.split(" ")[0] == name.split(" ")[0]
-         and k.split(" ")[-1] == name.split(" ")[-1]), None,
-    )  # fmt: skip
+        (
+            k
+            for k in code_parts
+            if k.split(" ")[0] == name.split(" ")[0] and k.split(" ")[-1] == name.split(" ")[-1]
+        ),
+        None,
+    )
     if code_name is None:
         return verdict
     code = code_parts[code_name]

@@ -164,8 +164,9 @@ def primary(runs: list[RunRecord], env: str, condition: str) -> RunRecord | None
         and not is_code_setting(r)
         and not variant(r)
     ]
-    return min(mine, key=lambda r: (len(r.config["run_config"].get("hparams", ())), r.name),
-               default=None)  # fmt: skip
+    return min(
+        mine, key=lambda r: (len(r.config["run_config"].get("hparams", ())), r.name), default=None
+    )
 
 
 def c7(runs: list[RunRecord]) -> Claim:
@@ -182,10 +183,14 @@ def c7(runs: list[RunRecord]) -> Claim:
         attacked = estimate(admo.per_seed("eval/success"))
         lines.append(f"{env}: {base.mean:.2f} → {attacked.mean:.2f}")
         numbers.append(
-            Comparison(f"{env} clean → ADMO success", f"{clean.iterations:,} updates",
-                       f"≥ {BASELINE:g} → < {C7_TARGETS.get(env, '–')}", None,
-                       f"{base.mean:.2f} → {attacked.mean:.2f}")
-        )  # fmt: skip
+            Comparison(
+                f"{env} clean → ADMO success",
+                f"{clean.iterations:,} updates",
+                f"≥ {BASELINE:g} → < {C7_TARGETS.get(env, '–')}",
+                None,
+                f"{base.mean:.2f} → {attacked.mean:.2f}",
+            )
+        )
         if base.mean >= BASELINE:
             parts[f"{env} baseline"] = verdicts.reproduced(f"{base}")
         else:
@@ -219,9 +224,11 @@ def baseline_shortfall(runs, env, clean, base) -> verdicts.Verdict:
     others = [
         r
         for r in runs
-        if size(r) == size(clean) and r.learner == LEARNER and r.condition == CLEAN
+        if size(r) == size(clean)
+        and r.learner == LEARNER
+        and r.condition == CLEAN
         and r is not clean
-    ]  # fmt: skip
+    ]
     transfer = [r for r in others if is_counterfactual(r)]
     settings = [
         r for r in others if is_code_setting(r) and not is_counterfactual(r) and r.env == env
@@ -240,8 +247,11 @@ def baseline_shortfall(runs, env, clean, base) -> verdicts.Verdict:
             f"clean {base}; with a reward-transfer action (counterfactual) {best:.2f}: the "
             "paper's env has no pay-back channel",
         )
-    scores = [float(r.per_seed("eval/success").mean()) for r in settings
-              if r.per_seed("eval/success").size]  # fmt: skip
+    scores = [
+        float(r.per_seed("eval/success").mean())
+        for r in settings
+        if r.per_seed("eval/success").size
+    ]
     if scores and max(scores) < BASELINE:
         return verdicts.refuted(
             verdicts.PAPER_CODE,
@@ -297,10 +307,17 @@ def settings_table(runs: list[RunRecord]) -> Table | None:
         if run.learner != LEARNER:
             continue
         rows.append(
-            [run.env, setting_label(run) + _setting_kind(run),
-             run.condition, run.seeds, run.iterations, estimate(run.per_seed("eval/success")),
-             voi_roles(run), run.setting]
-        )  # fmt: skip
+            [
+                run.env,
+                setting_label(run) + _setting_kind(run),
+                run.condition,
+                run.seeds,
+                run.iterations,
+                estimate(run.per_seed("eval/success")),
+                voi_roles(run),
+                run.setting,
+            ]
+        )
     if not any(row[6] for row in rows):
         return None
     header = ["env", "setting", "condition", "seeds", "updates", f"success {INTERVAL}"]

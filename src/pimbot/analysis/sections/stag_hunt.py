@@ -51,11 +51,21 @@ def section(table: RunTable, ctx: Context) -> Section | None:
         parts.update(judged)
         lines.append(line)
         numbers += [
-            Comparison(f"{env} clean success rise", f"{clean.iterations:,} it", "rises", None,
-                       str(rise(clean))),
-            Comparison(f"{env} ADMO final success", f"{admo.iterations:,} it", "→ 0", None,
-                       str(estimate(admo.per_seed(SUCCESS)))),
-        ]  # fmt: skip
+            Comparison(
+                f"{env} clean success rise",
+                f"{clean.iterations:,} it",
+                "rises",
+                None,
+                str(rise(clean)),
+            ),
+            Comparison(
+                f"{env} ADMO final success",
+                f"{admo.iterations:,} it",
+                "→ 0",
+                None,
+                str(estimate(admo.per_seed(SUCCESS))),
+            ),
+        ]
         reference = plots.RANDOM_POLICY.get(env, {}).get(CAPTURES)
         for run in (clean, admo):
             rows.append(
