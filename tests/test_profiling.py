@@ -192,7 +192,10 @@ def test_profile_bad_input_is_one_line(tmp_path, capsys):
     argv = ["profile", "--env", "escape_room-v0", "--controller", "evil", "--out", str(tmp_path)]
     assert cli.main(argv) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "controller: unknown value 'evil'; allowed: benign, admo" in err
+    assert (
+        err.count("\n") == 1
+        and "controller: unknown value 'evil'; allowed: benign, admo, admo_code" in err
+    )
     assert cli.main(["profile", "--env", "escape_room-v0", "--duration", "0", "--out", "x"]) == 2
 
 
@@ -221,9 +224,9 @@ def test_paired_profile_end_to_end(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "ADMO overhead" in printed and "decisions/s" in printed
     summary = json.loads((out / "summary.json").read_text())
-    assert set(summary) == {"benign", "admo", "comparison"}
+    assert set(summary) == {"benign", "admo", "admo_code", "comparison", "comparison_admo_code"}
     assert (out / "profile.png").stat().st_size > 0
-    for controller in ("benign", "admo"):
+    for controller in ("benign", "admo", "admo_code"):
         run = out / controller
         for name in ("trace.csv", "latency.csv", "updates.csv", "segments.csv", "summary.json"):
             assert (run / name).exists(), name
@@ -254,12 +257,17 @@ def test_paired_profile_end_to_end(tmp_path, capsys):
         updates = csv.DictReader((run / "updates.csv").read_text().splitlines())
         upd_s = sum(float(r["time_s"]) for r in updates)
         assert at["amortized_ms"] == pytest.approx(1e3 * (lat_s + upd_s) / at["decisions"])
+        cpus = sum(float(r["cpu_s"]) for r in segments)
+        assert 0 < at["amortized_cpu_ms"] * at["decisions"] / 1e3 <= cpus  # inside segments
+        assert "other_load_cores" in at
         cpu = at["process_cpu"]
         assert cpu["windows"] >= len(segments) and 0 < cpu["mean"] <= cpu["max"] <= 100.0
         assert cpu["one_core_mean"] == pytest.approx(cpu["mean"] * s["usable_cores"])
     # Only the controller differs between the paired runs.
-    b, a = summary["benign"]["config"], summary["admo"]["config"]
-    assert {k for k in b if b[k] != a[k]} == {"controller"}
+    b = summary["benign"]["config"]
+    for attacked in ("admo", "admo_code"):
+        a = summary[attacked]["config"]
+        assert {k for k in b if b[k] != a[k]} == {"controller"}
     comp = summary["comparison"]
     assert comp["latency_p50_ms"]["benign"] > 0
     assert "percent_of_decision" in comp["update_per_decision_ms"]
@@ -269,6 +277,9 @@ def test_paired_profile_end_to_end(tmp_path, capsys):
     assert 2 <= training["played_per_update"]["benign"] <= 10
     assert comp["judged_cadence"] == 10
     assert len(comp["cadences"]["10"]["per_round_percent"]) == b["rounds"]
+    assert len(comp["cadences"]["10"]["per_round_cpu_percent"]) == b["rounds"]
+    code = summary["comparison_admo_code"]
+    assert code["judged_cadence"] == 10 and len(code["cadences"]["10"]["per_round_percent"])
     amortized = comp["cadences"]["10"]["amortized_ms"]
     assert amortized["percent"] == pytest.approx(
         100 * (amortized["admo"] - amortized["benign"]) / amortized["benign"]
@@ -339,29 +350,53 @@ def test_config_refuses_bad_cadences():
         ProfileConfig(rounds=0)
 
 
-def _summary(per_round, cpu_mean=40.0, benign_cpu=40.0, judged=10, slowest_percent=5.0):
+def _summary(
+    per_round,
+    cpu_mean=40.0,
+    benign_cpu=40.0,
+    judged=10,
+    slowest_percent=5.0,
+    other_load=0.1,
+    per_round_cpu=None,
+    gpu=None,
+):
     """A paired profile's summary with what judge_c8 reads: overheads per round at the
-    judged cadence, a 100-decision cadence at `slowest_percent`."""
+    judged cadence (by wall clock and by CPU time), a 100-decision cadence at
+    `slowest_percent`, `other_load` cores of other work on the machine."""
 
     def run(update_ms, cpu):
         entry = {
             "updates": 50,
             "update_ms": {"mean": update_ms},
+            "latency_ms": {"mean": 1.0},
+            "update_cpu_ms": update_ms,
+            "decision_cpu_ms": 1.0,
             "amortized_ms": 1.0 + update_ms / judged,
+            "amortized_cpu_ms": 1.0 + update_ms / judged,
+            "amortized_p50_ms": 1.0 + update_ms / judged,
             "process_cpu": {"mean": cpu, "p95": cpu, "max": cpu},
-            "mean_gpu_percent": None,
+            "other_load_cores": other_load,
+            "mean_gpu_percent": gpu,
         }
-        return {"usable_cores": 2, "process_cpu": entry["process_cpu"], "mean_gpu_percent": None,
+        return {"usable_cores": 2, "process_cpu": entry["process_cpu"], "mean_gpu_percent": gpu,
                 "cadences": {str(judged): entry}}  # fmt: skip
 
+    def percent(values):
+        return {"percent": float(np.mean(values))}
+
+    cpu_rounds = list(per_round if per_round_cpu is None else per_round_cpu)
     cadences = {
         str(judged): {
             "per_round_percent": list(per_round),
-            "latency_mean_ms": {"percent": 1.0},
-            "amortized_ms": {"percent": float(np.mean(per_round))},
-            "amortized_p50_ms": {"percent": float(np.mean(per_round))},
+            "per_round_cpu_percent": cpu_rounds,
+            "amortized_ms": percent(per_round),
+            "amortized_cpu_ms": percent(cpu_rounds),
+            "amortized_p50_ms": percent(per_round),
         },
-        "100": {"amortized_ms": {"percent": slowest_percent}},
+        "100": {
+            "amortized_ms": {"percent": slowest_percent},
+            "amortized_cpu_ms": {"percent": slowest_percent},
+        },
     }
     return {
         "benign": run(2.0, benign_cpu),
@@ -378,21 +413,52 @@ def _summary(per_round, cpu_mean=40.0, benign_cpu=40.0, judged=10, slowest_perce
     }
 
 
+LOW = [5, 8, 6, 7, 9, 4]
+HIGH = [60, 62, 58, 61, 59, 63]
+
+
 def test_c8_verdicts_from_the_numbers():
     from pimbot.analysis.sections.device import judge_c8
 
-    assert judge_c8(_summary([5, 8, 6, 7, 9, 4]))[0].kind == verdicts.REPRODUCED
-    refuted = judge_c8(_summary([60, 62, 58, 61, 59, 63]))[0]
+    assert judge_c8(_summary(LOW))[0].kind == verdicts.REPRODUCED
+    refuted = judge_c8(_summary(HIGH))[0]
     assert refuted.kind == verdicts.REFUTED and refuted.causes == (verdicts.BUDGET,)
     assert "2.0x a benign" in refuted.reason  # ADMO's update 4 ms vs 2 ms
-    dearer = judge_c8(_summary([60, 62, 58, 61, 59, 63], slowest_percent=40.0))[0]
+    dearer = judge_c8(_summary(HIGH, slowest_percent=40.0))[0]
     assert dearer.causes == (verdicts.IMPLEMENTATION,)
     assert judge_c8(_summary([0, 50, 10, 40, 20, 30]))[0].kind == verdicts.INCONCLUSIVE
-    saturated = judge_c8(_summary([5, 8, 6, 7, 9, 4], cpu_mean=95.0))[0]
+    saturated = judge_c8(_summary(LOW, cpu_mean=95.0))[0]
     assert saturated.kind == verdicts.REFUTED and saturated.causes == (verdicts.IMPLEMENTATION,)
-    machine = judge_c8(_summary([5, 8, 6, 7, 9, 4], cpu_mean=95.0, benign_cpu=95.0))[0]
+    machine = judge_c8(_summary(LOW, cpu_mean=95.0, benign_cpu=95.0))[0]
     assert machine.causes == (verdicts.BUDGET,)
-    summary = _summary([5, 8, 6, 7, 9, 4])
+    summary = _summary(LOW)
     summary["comparison"]["judged_cadence"] = None
     missing = judge_c8(summary)[0]
     assert missing.kind == verdicts.INCONCLUSIVE and "not profiled" in missing.reason
+
+
+def test_c8_refuted_where_only_the_papers_admo_is_dear_points_at_its_code():
+    from pimbot.analysis.sections.device import judge_c8
+
+    summary = _summary(HIGH)
+    summary["comparison_admo_code"] = {
+        "cadences": {"10": {"per_round_percent": LOW, "per_round_cpu_percent": LOW}}
+    }
+    verdict, measured, _, _ = judge_c8(summary)
+    assert verdict.causes == (verdicts.PAPER_CODE,) and "published code's ADMO" in measured
+    summary["comparison_admo_code"]["cadences"]["10"]["per_round_percent"] = HIGH
+    assert judge_c8(summary)[0].causes == (verdicts.BUDGET,)
+
+
+def test_c8_on_a_shared_machine_is_judged_on_cpu_time():
+    """Other work on the machine lengthens short decisions more than updates: the
+    wall-clock overhead (LOW) is not the controller's; its CPU time (HIGH) is judged."""
+    from pimbot.analysis.sections.device import judge_c8
+
+    verdict, measured, short, _ = judge_c8(_summary(LOW, other_load=1.5, per_round_cpu=HIGH))
+    assert verdict.kind == verdicts.REFUTED and "CPU time" in verdict.reason
+    assert "1.5 cores of other work" in measured and "CPU time" in short
+    quiet = judge_c8(_summary(LOW, other_load=0.2, per_round_cpu=HIGH))[0]
+    assert quiet.kind == verdicts.REPRODUCED and "wall-clock" in quiet.reason
+    with_gpu = judge_c8(_summary(LOW, other_load=1.5, per_round_cpu=HIGH, gpu=10.0))[0]
+    assert with_gpu.kind == verdicts.INCONCLUSIVE and "GPU" in with_gpu.reason

@@ -5,7 +5,7 @@ every agent's policy and incentive heads run (one jitted function, batch 1
 per agent) → the actions are back on the host (committed). The environment is
 then stepped `action_repeat` times off the timed path. Every `cadence`
 decisions one learner update (`lio.update`, with the ADMO attack on agent 0
-for the adversarial controller) runs and is timed on its own. Compilation and
+for the adversarial controllers: `CONTROLLERS`) runs and is timed on its own. Compilation and
 warm-up are timed separately and excluded from the steady-state samples.
 
 One profile measures several cadences (decisions per update) and, paired, both
@@ -33,7 +33,9 @@ from pimbot.contracts.attack import NO_ATTACK
 from pimbot.profiling import process_cpu
 from pimbot.rollout import decide
 
-CONTROLLERS = ("benign", "admo")
+CONTROLLERS = ("benign", "admo", "admo_code")
+"""Plain LIO; the paper's ADMO on agent 0; the published code's ADMO (`admo_code`, a
+scheduler of extra ordinary steps) on agent 0. A paired profile runs them all."""
 DEFAULT_CADENCES = (2, 10, 100)
 """Decisions per learner update profiled by default: LIO's ER(2,1) training takes 10
 (two episodes of a 5-step horizon, `cadence.training_cadence`), a converged policy plays
@@ -49,8 +51,8 @@ class ProfileConfig:
     env_params: tuple[tuple[str, Any], ...] = ()
     """Environment parameters as (name, value) pairs."""
     controller: str = "benign"
-    """"benign" (plain LIO) or "admo" (ADMO attached to agent 0); a paired profile runs
-    both."""
+    """"benign" (plain LIO), "admo" (the paper's ADMO on agent 0) or "admo_code" (the
+    published code's ADMO on agent 0); a paired profile runs all three."""
     duration_s: float = 20.0
     """Steady-state wall time per controller, split evenly over the cadences and rounds."""
     hidden: tuple[int, ...] = (256, 128)
@@ -93,6 +95,8 @@ class Segment:
     cadence: int
     latencies_s: np.ndarray  # [decisions]
     update_times_s: np.ndarray  # [updates]
+    decision_cpu_s: np.ndarray  # [decisions] the process's CPU time over each decision
+    update_cpu_s: np.ndarray  # [updates] the process's CPU time over each update
     wall_s: float  # the segment's wall time, environment steps included
     cpu_s: float  # the process's CPU time over the segment (all threads)
     cpu_windows: np.ndarray  # [windows, 2]: (wall s, process CPU s) of each window
@@ -123,14 +127,14 @@ class LoopResult:
 
 
 def make_attack(controller: str, num_agents: int):
-    """The controller's attack: none (benign) or ADMO on agent 0."""
+    """The controller's attack: none (benign), or `admo` / `admo_code` on agent 0."""
     if controller not in CONTROLLERS:
         raise envs.InvalidParameter(
             f"controller: unknown controller {controller!r}; allowed: {', '.join(CONTROLLERS)}"
         )
     if controller == "benign":
         return NO_ATTACK
-    return attacks.make("admo", num_agents, adversary=0)
+    return attacks.make(controller, num_agents, adversary=0)
 
 
 def build(config: ProfileConfig):
@@ -167,6 +171,13 @@ def _timed(fn, *args):
     start = time.perf_counter()
     out = jax.block_until_ready(fn(*args))
     return out, time.perf_counter() - start
+
+
+def _timed_cpu(fn, *args):
+    """(output, wall s, the process's CPU s) of one call, finished on the device."""
+    cpu = process_cpu.seconds()
+    out, wall = _timed(fn, *args)
+    return out, wall, process_cpu.seconds() - cpu
 
 
 class Controller:
@@ -209,15 +220,18 @@ class Controller:
         self.state, _ = _timed(self._update, self.state)
         self.warmup_s = time.perf_counter() - warm_start
 
-    def decision(self) -> float:
-        """One timed decision, then the environment off the timed path; its latency (s)."""
+    def decision(self) -> tuple[float, float]:
+        """One timed decision, then the environment off the timed path; its latency and
+        the process's CPU time over it (s)."""
         self.act_key, k = jax.random.split(self.act_key)
+        cpu = process_cpu.seconds()
         start = time.perf_counter()
         actions, self.given = self._decide(
             self.state, k, jax.device_put(np.asarray(self.obs)), self.given, self.steps
         )
         actions = np.asarray(actions)  # committed: on the host
         latency = time.perf_counter() - start
+        cpu = process_cpu.seconds() - cpu
         done = False
         for _ in range(self.config.action_repeat):
             self.env_key, k = jax.random.split(self.env_key)
@@ -229,12 +243,12 @@ class Controller:
             self.env_key, k = jax.random.split(self.env_key)
             self.obs, self.env_state = self._env_reset(k)
             self.given = jnp.zeros_like(self.given)
-        return latency
+        return latency, cpu
 
     def segment(self, round_index: int, cadence: int) -> Segment:
         """Cycles of `cadence` decisions and one update until the segment's time is up."""
         duration, window_s = self.config.segment_s(), self.config.cpu_window_s
-        latencies, updates, windows = [], [], []
+        latencies, updates, windows = [], [], []  # (wall s, CPU s) each
         start = time.perf_counter()
         cpu_start = process_cpu.seconds()
         window_wall, window_cpu = start, cpu_start
@@ -243,8 +257,8 @@ class Controller:
             latencies.append(self.decision())
             decisions += 1
             if decisions % cadence == 0:
-                self.state, update_time = _timed(self._update, self.state)
-                updates.append(update_time)
+                self.state, *update = _timed_cpu(self._update, self.state)
+                updates.append(update)
             now = time.perf_counter()
             if now - window_wall >= window_s:
                 cpu = process_cpu.seconds()
@@ -260,8 +274,10 @@ class Controller:
         return Segment(
             round=round_index,
             cadence=cadence,
-            latencies_s=np.asarray(latencies),
-            update_times_s=np.asarray(updates),
+            latencies_s=np.asarray(latencies).reshape(-1, 2)[:, 0],
+            update_times_s=np.asarray(updates).reshape(-1, 2)[:, 0],
+            decision_cpu_s=np.asarray(latencies).reshape(-1, 2)[:, 1],
+            update_cpu_s=np.asarray(updates).reshape(-1, 2)[:, 1],
             wall_s=wall,
             cpu_s=cpu - cpu_start,
             cpu_windows=np.asarray(windows, dtype=float).reshape(-1, 2),

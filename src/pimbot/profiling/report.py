@@ -7,6 +7,7 @@ run directories back (figures are rebuilt from artifacts only).
 from __future__ import annotations
 
 import csv
+import re
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +23,8 @@ SEGMENTS = "segments.csv"
 CPU_WINDOWS = "cpu_windows.csv"
 SUMMARY = "summary.json"
 FIGURE = "profile.png"
+PER_CORE = re.compile(r"cpu\d+_percent")
+"""psutil's per-core CPU % columns of a trace row."""
 
 
 def percentiles(values: np.ndarray, scale: float = 1e3) -> dict[str, float | int | None]:
@@ -61,13 +64,37 @@ def energy_j(rows: list[dict[str, Any]]) -> float | None:
     return float(np.sum(np.diff(t) * (p[1:] + p[:-1]) / 2))
 
 
+def other_load_cores(rows: list[dict[str, Any]]) -> float | None:
+    """Mean CPU the rest of the machine used while these samples were taken, in cores: the
+    system-wide busy cores (psutil's total % × its per-core count) less this process's
+    own; None without both readings."""
+    loads = []
+    for row in rows:
+        system, own = row.get("cpu_percent"), row.get("process_cpu_percent")
+        cores = sum(1 for k in row if PER_CORE.fullmatch(k))
+        if system is not None and own is not None and cores:
+            loads.append(max(system / 100.0 * cores - own / 100.0, 0.0))
+    return float(np.mean(loads)) if loads else None
+
+
+def _amortized_ms(decisions: np.ndarray, updates: np.ndarray) -> float | None:
+    return 1e3 * float(decisions.sum() + updates.sum()) / decisions.size if decisions.size else None
+
+
+def _mean_ms(parts: list[np.ndarray]) -> float | None:
+    values = np.concatenate(parts or [np.zeros(0)])
+    return 1e3 * float(values.mean()) if values.size else None
+
+
 def _cadence_summary(
     cadence: int, segments, rows: list[dict[str, Any]], cores: int
 ) -> dict[str, Any]:
     """One cadence's segments: decisions, updates, the amortized time per decision (its
     decision latencies and update times summed, over its decisions; `amortized_p50_ms`:
     the median decision latency + the median update time / cadence, which pre-emption by
-    other work on the machine moves less), rates and CPU."""
+    other work on the machine moves less; `amortized_cpu_ms`: the same from the process's
+    CPU time over each decision and update, which other work on the machine does not
+    lengthen but which misses a GPU's work), rates and CPU."""
     lat = np.concatenate([s.latencies_s for s in segments] or [np.zeros(0)])
     upd = np.concatenate([s.update_times_s for s in segments] or [np.zeros(0)])
     wall = float(sum(s.wall_s for s in segments))
@@ -89,11 +116,23 @@ def _cadence_summary(
         ),
         "decisions_per_s": lat.size / wall if wall > 0 else None,
         "timed_decisions_per_s": lat.size / timed if timed > 0 else None,
+        "decision_cpu_ms": _mean_ms([s.decision_cpu_s for s in segments]),
+        "update_cpu_ms": _mean_ms([s.update_cpu_s for s in segments]),
+        "amortized_cpu_ms": _amortized_ms(
+            np.concatenate([s.decision_cpu_s for s in segments] or [np.zeros(0)]),
+            np.concatenate([s.update_cpu_s for s in segments] or [np.zeros(0)]),
+        ),
         "per_round_amortized_ms": {
-            str(s.round): 1e3 * (s.latencies_s.sum() + s.update_times_s.sum()) / s.latencies_s.size
+            str(s.round): _amortized_ms(s.latencies_s, s.update_times_s)
             for s in segments
             if s.latencies_s.size
         },
+        "per_round_amortized_cpu_ms": {
+            str(s.round): _amortized_ms(s.decision_cpu_s, s.update_cpu_s)
+            for s in segments
+            if s.latencies_s.size
+        },
+        "other_load_cores": other_load_cores(rows),
         "process_cpu": cpu,
         "mean_system_cpu_percent": _mean([r.get("cpu") for r in rows]),
         "mean_gpu_percent": _mean([r.get("gpu") for r in rows]),
@@ -126,6 +165,7 @@ def summarize(
         "usable_cores": cores,
         "process_cpu": process_cpu.stats(windows, cores),
         "mean_system_cpu_percent": _mean([r.get("cpu") for r in steady]),
+        "other_load_cores": other_load_cores(steady),
         "mean_gpu_percent": _mean([r.get("gpu") for r in steady]),
         "mean_power_w": _mean([r.get("power") for r in steady]),
         "energy_j": energy_j(rows),
@@ -153,6 +193,12 @@ def overhead(admo, benign) -> dict[str, float] | None:
     }
 
 
+def _per_round(admo: dict, benign: dict, key: str) -> list[float]:
+    """ADMO's overhead in % of benign per round, for the rounds both ran."""
+    a, b = admo[key], benign[key]
+    return [100.0 * (a[r] - b[r]) / b[r] for r in a if r in b and b[r]]
+
+
 def compare(benign: dict, admo: dict, training: dict[str, int]) -> dict:
     """ADMO's overhead over the benign run, per cadence and at the training cadence.
 
@@ -160,7 +206,8 @@ def compare(benign: dict, admo: dict, training: dict[str, int]) -> dict:
     cost spread over the decisions between updates: the difference of the amortized times
     per decision (decision latency + update time / cadence, both measured) in % of the
     benign one; `per_round_percent` is the same per round (the two controllers' segments
-    of a round ran back to back). `judged_cadence` is the training cadence where it was
+    of a round ran back to back); `amortized_cpu_ms` and `per_round_cpu_percent` the same
+    from the process's CPU time. `judged_cadence` is the training cadence where it was
     profiled, else None.
     """
     cadences = {}
@@ -171,15 +218,13 @@ def compare(benign: dict, admo: dict, training: dict[str, int]) -> dict:
         cadences[key] = {
             "amortized_ms": overhead(a["amortized_ms"], b["amortized_ms"]),
             "amortized_p50_ms": overhead(a["amortized_p50_ms"], b["amortized_p50_ms"]),
+            "amortized_cpu_ms": overhead(a["amortized_cpu_ms"], b["amortized_cpu_ms"]),
             "decisions_per_s": overhead(a["decisions_per_s"], b["decisions_per_s"]),
             "latency_mean_ms": overhead(a["latency_ms"]["mean"], b["latency_ms"]["mean"]),
             "update_mean_ms": overhead(a["update_ms"]["mean"], b["update_ms"]["mean"]),
             "process_cpu_mean": overhead(a["process_cpu"]["mean"], b["process_cpu"]["mean"]),
-            "per_round_percent": [
-                100.0 * (a_ms - b["per_round_amortized_ms"][r]) / b["per_round_amortized_ms"][r]
-                for r, a_ms in a["per_round_amortized_ms"].items()
-                if r in b["per_round_amortized_ms"]
-            ],
+            "per_round_percent": _per_round(a, b, "per_round_amortized_ms"),
+            "per_round_cpu_percent": _per_round(a, b, "per_round_amortized_cpu_ms"),
         }
     judged = training["decisions_per_update"]
     judged = judged if str(judged) in cadences else None

@@ -1,9 +1,11 @@
 """One profile: the decision loop under the samplers, written to a run directory.
 
-`profile(config, out)` runs one controller; with `paired=True` benign and ADMO
-run in one process, their segments interleaved, with everything else identical
-(out/benign, out/admo), and the top-level summary compares them per cadence and
-at LIO's training cadence (`cadence.of_profile`).
+`profile(config, out)` runs one controller; with `paired=True` every controller
+(benign, the paper's ADMO, the published code's ADMO) runs in one process, their
+segments interleaved, with everything else identical (out/benign, out/admo,
+out/admo_code), and the top-level summary compares each attack with benign per
+cadence and at LIO's training cadence (`cadence.of_profile`): "comparison" (ADMO)
+and "comparison_admo_code".
 """
 
 from __future__ import annotations
@@ -73,6 +75,9 @@ def profile(
     summary = {
         **summaries,
         "comparison": report.compare(summaries["benign"], summaries["admo"], training),
+        "comparison_admo_code": report.compare(
+            summaries["benign"], summaries["admo_code"], training
+        ),
     }
     store.write_json(out / report.SUMMARY, summary)
     report.plot_profiles(
