@@ -457,6 +457,9 @@ def test_c8_on_a_shared_machine_is_judged_on_cpu_time():
 
     verdict, measured, short, _ = judge_c8(_summary(LOW, other_load=1.5, per_round_cpu=HIGH))
     assert verdict.kind == verdicts.REFUTED and "CPU time" in verdict.reason
+    assert "saturation" not in verdict.reason  # inconclusive there: the share was held down
+    held = judge_c8(_summary(LOW, other_load=1.5))[0]
+    assert held.kind == verdicts.INCONCLUSIVE and "machine was shared" in held.reason
     assert "1.5 cores of other work" in measured and "CPU time" in short
     quiet = judge_c8(_summary(LOW, other_load=0.2, per_round_cpu=HIGH))[0]
     assert quiet.kind == verdicts.REPRODUCED and "wall-clock" in quiet.reason

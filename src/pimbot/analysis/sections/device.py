@@ -161,18 +161,19 @@ lengthen short decisions far more than updates. C8 is then judged on the process
 time (where no GPU works for it; with a GPU that time misses the GPU's work)."""
 
 
-def _basis(benign: dict, admo: dict) -> tuple[dict | None, str]:
-    """What the overhead is judged on, and the words that say why."""
+def _basis(benign: dict, admo: dict) -> tuple[dict | None, str, bool]:
+    """What the overhead is judged on (None: nothing fits), the words that say why, and
+    whether the machine was shared."""
     loads = [c["other_load_cores"] for c in (benign, admo) if c.get("other_load_cores") is not None]
     if not loads:
-        return WALL, "other load on the machine not measured"
+        return WALL, "other load on the machine not measured", False
     other = max(loads)
     words = f"{other:.1f} cores of other work on the machine"
     if other < SHARED_CORES:
-        return WALL, words
+        return WALL, words, False
     if admo["mean_gpu_percent"] is not None:
-        return None, words
-    return CPU_TIME, words
+        return None, words, True
+    return CPU_TIME, words, True
 
 
 def _value(entry: dict, path: tuple[str, ...]):
@@ -181,10 +182,11 @@ def _value(entry: dict, path: tuple[str, ...]):
     return entry
 
 
-def _unsaturated(admo: dict, benign: dict, cores: int) -> Verdict:
+def _unsaturated(admo: dict, benign: dict, cores: int, shared: bool) -> Verdict:
     """No sustained saturation: ADMO's mean process CPU (and mean GPU, where measured)
     below the bound. A saturated ADMO run is our setting where the benign run saturates
-    too (the machine), our implementation where only ADMO does."""
+    too (the machine), our implementation where only ADMO does. Unsaturated on a
+    `shared` machine is inconclusive: other work held the process's share down."""
     cpu, gpu = admo["process_cpu"], admo["mean_gpu_percent"]
     text = (
         f"process CPU under ADMO mean {fmt(cpu['mean'], 1)} / p95 {fmt(cpu['p95'], 1)} / max "
@@ -195,6 +197,11 @@ def _unsaturated(admo: dict, benign: dict, cores: int) -> Verdict:
     if cpu["mean"] is None:
         return verdicts.inconclusive("no process CPU windows at the training cadence")
     saturated = cpu["mean"] >= SATURATED_PERCENT or (gpu is not None and gpu >= SATURATED_PERCENT)
+    if not saturated and shared:
+        return verdicts.inconclusive(
+            f"{text}; the machine was shared, which holds the process's CPU below what it "
+            "would use alone"
+        )
     if not saturated:
         return verdicts.reproduced(text)
     b_gpu = benign["mean_gpu_percent"]
@@ -229,7 +236,7 @@ def judge_c8(summary: dict) -> tuple[Verdict, str, str, list[Comparison]]:
         reason = f"only {updates} update steps at the training cadence ({judged} decisions)"
         return verdicts.inconclusive(reason), reason, reason, []
     at = comp["cadences"][key]
-    basis, load = _basis(benign, admo)
+    basis, load, shared = _basis(benign, admo)
     cores = summary["admo"]["usable_cores"]
     if basis is None:
         overhead = verdicts.inconclusive(
@@ -257,7 +264,7 @@ def judge_c8(summary: dict) -> tuple[Verdict, str, str, list[Comparison]]:
         overhead = _modest(
             est, None if at_slowest is None else at_slowest["percent"], slowest, context
         )
-    parts = {"overhead": overhead, "saturation": _unsaturated(admo, benign, cores)}
+    parts = {"overhead": overhead, "saturation": _unsaturated(admo, benign, cores, shared)}
     update = [_value(c, basis["update"]) for c in (admo, benign)]
     extra_update = (update[0] - update[1]) / judged
     extra = admo[basis["amortized"]] - benign[basis["amortized"]]
