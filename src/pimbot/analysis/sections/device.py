@@ -105,8 +105,8 @@ def _modest(est: Estimate | None, at_slowest: float | None, slowest: int, contex
     overhead the paper reports fits its code's scheduler of extra ordinary steps, not the
     attack it describes); our setting where a slower cadence amortizes it (the update
     step dominates: its cost against a decision depends on the machine and the cadence;
-    the paper does not state its cadence); else our implementation (ADMO's decisions
-    themselves are dearer)."""
+    spec/profiling.md gives the paper's profile no cadence); else our implementation
+    (ADMO's decisions themselves are dearer)."""
     if est is None:
         return verdicts.inconclusive("no paired rounds at the training cadence")
     text = f"amortized overhead ({context['basis']}) {est} % over {context['rounds']} rounds"
@@ -129,7 +129,7 @@ def _modest(est: Estimate | None, at_slowest: float | None, slowest: int, contex
             f"{text} > {MODEST_PERCENT:g} %: an ADMO update step costs {ratio:.1f}x a benign "
             f"one on this machine ({context['machine']}), spread over only "
             f"{context['judged']} decisions; at {slowest} decisions per update "
-            f"{at_slowest:+.1f} % (the paper does not state its cadence)"
+            f"{at_slowest:+.1f} % (spec/profiling.md gives the paper's profile no cadence)"
             + (f"; the published code's ADMO {code} %" if code is not None else ""),
         )
     return verdicts.refuted(
