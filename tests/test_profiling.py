@@ -379,7 +379,7 @@ def _summary(
             "mean_gpu_percent": gpu,
         }
         return {"usable_cores": 2, "process_cpu": entry["process_cpu"], "mean_gpu_percent": gpu,
-                "cadences": {str(judged): entry}}  # fmt: skip
+                "other_load_cores": other_load, "cadences": {str(judged): entry}}  # fmt: skip
 
     def percent(values):
         return {"percent": float(np.mean(values))}
@@ -463,5 +463,9 @@ def test_c8_on_a_shared_machine_is_judged_on_cpu_time():
     assert "1.5 cores of other work" in measured and "CPU time" in short
     quiet = judge_c8(_summary(LOW, other_load=0.2, per_round_cpu=HIGH))[0]
     assert quiet.kind == verdicts.REPRODUCED and "wall-clock" in quiet.reason
+    unsampled = _summary(LOW, other_load=1.5, per_round_cpu=HIGH)  # segments under a sample
+    for name in ("benign", "admo"):
+        unsampled[name]["cadences"]["10"]["other_load_cores"] = None
+    assert "CPU time" in judge_c8(unsampled)[0].reason  # the whole steady state's load
     with_gpu = judge_c8(_summary(LOW, other_load=1.5, per_round_cpu=HIGH, gpu=10.0))[0]
     assert with_gpu.kind == verdicts.INCONCLUSIVE and "GPU" in with_gpu.reason

@@ -161,17 +161,22 @@ lengthen short decisions far more than updates. C8 is then judged on the process
 time (where no GPU works for it; with a GPU that time misses the GPU's work)."""
 
 
-def _basis(benign: dict, admo: dict) -> tuple[dict | None, str, bool]:
-    """What the overhead is judged on (None: nothing fits), the words that say why, and
-    whether the machine was shared."""
-    loads = [c["other_load_cores"] for c in (benign, admo) if c.get("other_load_cores") is not None]
+def _basis(summary: dict, key: str) -> tuple[dict | None, str, bool]:
+    """What the overhead at cadence `key` is judged on (None: nothing fits), the words that
+    say why, and whether the machine was shared: other work at that cadence, or over the
+    whole steady state where its segments were too short for a sample."""
+    runs = [summary[c] for c in ("benign", "admo")]
+    loads = [r["cadences"][key].get("other_load_cores") for r in runs]
+    if all(v is None for v in loads):
+        loads = [r.get("other_load_cores") for r in runs]
+    loads = [v for v in loads if v is not None]
     if not loads:
         return WALL, "other load on the machine not measured", False
     other = max(loads)
     words = f"{other:.1f} cores of other work on the machine"
     if other < SHARED_CORES:
         return WALL, words, False
-    if admo["mean_gpu_percent"] is not None:
+    if runs[1]["cadences"][key]["mean_gpu_percent"] is not None:
         return None, words, True
     return CPU_TIME, words, True
 
@@ -236,7 +241,7 @@ def judge_c8(summary: dict) -> tuple[Verdict, str, str, list[Comparison]]:
         reason = f"only {updates} update steps at the training cadence ({judged} decisions)"
         return verdicts.inconclusive(reason), reason, reason, []
     at = comp["cadences"][key]
-    basis, load, shared = _basis(benign, admo)
+    basis, load, shared = _basis(summary, key)
     cores = summary["admo"]["usable_cores"]
     if basis is None:
         overhead = verdicts.inconclusive(
