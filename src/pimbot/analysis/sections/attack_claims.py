@@ -23,7 +23,7 @@ import dataclasses
 import numpy as np
 
 from pimbot.analysis import judging, verdicts
-from pimbot.analysis.document import Claim, Comparison
+from pimbot.analysis.document import Claim, Comparison, count_text
 from pimbot.analysis.judging import PAPER_ATTACK_BUDGET, Curves, iteration_text
 from pimbot.analysis.runs import CLEAN, RunRecord, RunTable
 from pimbot.analysis.tables import Estimate, Table, difference, estimate
@@ -90,7 +90,7 @@ class Runs:
         common = min(limit, theirs.horizon)
         value = estimate(theirs.final(column, common), **fmt)
         label = "" if original.condition == run.condition else f" ({original.condition})"
-        seeds = f", {original.seeds} distinct logs"
+        seeds = f", {count_text([original.seeds], 'distinct logs')}"
         row = Comparison(
             quantity,
             f"{common:,} it",
