@@ -222,7 +222,7 @@ def test_default_configs():
     assert (nl.reciprocal_weight, nl.voi) == (0.0, "exact")
 
 
-def test_ipd_runs_of_the_reciprocator_default_to_the_originals_32_step_episodes():
+def test_ipd_runs_of_the_reciprocator_default_to_the_originals_32_step_episodes(capsys):
     """ipd-v0 declares max_steps = 32 for the Reciprocator (and NL, which shares its
     defaults); a max_steps the run gives wins; other learners keep the env's 5."""
     for learner in ("reciprocator", "nl"):
@@ -234,6 +234,10 @@ def test_ipd_runs_of_the_reciprocator_default_to_the_originals_32_step_episodes(
         assert resolve(given).env.max_steps == 5
     assert resolve(RunConfig("ipd-v0", learner="lio", iterations=1000)).env.max_steps == 5
     assert resolve(RunConfig("escape_room-v0", learner="reciprocator")).env.max_steps == 5
+    from pimbot.cli import listing
+
+    listing.print_envs()
+    assert "with --learner reciprocator (unless given): max_steps=32" in capsys.readouterr().out
 
 
 def test_bad_options_are_refused():
