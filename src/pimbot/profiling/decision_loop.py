@@ -4,17 +4,18 @@ Per decision: the observation is ready on the host → it is put on the device,
 every agent's policy and incentive heads run (one jitted function, batch 1
 per agent) → the actions are back on the host (committed). The environment is
 then stepped `action_repeat` times off the timed path. Every `cadence`
-decisions one learner update (`lio.update`, with the ADMO attack on agent 0
-for the adversarial controllers: `CONTROLLERS`) runs and is timed on its own. Compilation and
-warm-up are timed separately and excluded from the steady-state samples.
+decisions one learner update (`lio.update`, with the controller's attack on agent
+0: `CONTROLLERS`) runs and is timed on its own. Compilation and warm-up are timed
+separately and excluded from the steady-state samples.
 
-One profile measures several cadences (decisions per update) and, paired, both
-controllers in one process: the steady state is cut into segments, one per
+One profile measures several cadences (decisions per update) and, paired, every
+controller in one process: the steady state is cut into segments, one per
 (round, cadence, controller), run interleaved (the controllers' order alternating)
-so that a change in the machine's load falls on both controllers alike. A
-segment ends on an update, so it holds whole cycles of `cadence` decisions and
-one update. The process's own CPU time (all its threads) is read in windows of
-`cpu_window_s` inside each segment (the last one up to 1.5 windows long).
+so that a change in the machine's load falls on all controllers alike. A segment
+ends on an update, so it holds whole cycles of `cadence` decisions and one update.
+Each decision and update is timed by the wall clock and by the process's CPU time
+(all its threads); the process's CPU is also read in windows of `cpu_window_s`
+inside each segment (the last one up to 1.5 windows long).
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ scheduler of extra ordinary steps) on agent 0. A paired profile runs them all.""
 DEFAULT_CADENCES = (2, 10, 100)
 """Decisions per learner update profiled by default: LIO's ER(2,1) training takes 10
 (two episodes of a 5-step horizon, `cadence.training_cadence`), a converged policy plays
-2 of them (one step per episode), and 100 is a slower online learner."""
+2 of them (one step per episode), and 100 was pimbot's earlier single cadence."""
 
 
 @dataclasses.dataclass(frozen=True)
