@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from pimbot import attacks, envs, learners
@@ -338,9 +338,12 @@ def test_admo_code_weights_match_the_codes_regularised_solve(g_inc, g_pol, c, ti
 
     if tie is not None:  # equal, opposite and zero scalars: the unregularised M is singular
         g_pol = tie * g_inc
+    # Within ~1e-4 of a tie (not at one) the 1e-6 ridge meets the float32 rounding of the
+    # gram entries, which the code's own solve carries too: α is then only good to a few %
+    assume(g_pol == g_inc or abs(g_inc - g_pol) > 1e-3)
     c = np.array(c, np.float32)
     got = np.asarray(code_weights(jnp.float32(g_inc), jnp.float32(g_pol), jnp.asarray(c)))
-    np.testing.assert_allclose(got, _code_weights_reference(g_inc, g_pol, c), atol=2e-4)
+    np.testing.assert_allclose(got, _code_weights_reference(g_inc, g_pol, c), atol=1e-5)
     assert got.sum() == pytest.approx(1.0, abs=1e-6)
 
 
