@@ -19,7 +19,7 @@ from pimbot.attacks import Attack, register
 from pimbot.experiment import store
 
 TINY = ["--seeds", "2", "--iterations", "200", "--eval-period", "100", "--eval-episodes", "2"]
-TRAIN = ["train", "ipd-v0", *TINY, "--quiet"]
+TRAIN = ["train", "ipd-v0", *TINY, "--chunk-iterations", "100", "--quiet"]  # 2 checkpoints
 
 
 @register
@@ -119,8 +119,41 @@ def _damage_config(out):
     (out / "config.json").write_text("{not json")
 
 
+def _damage_config_edited(out):  # valid JSON, identity kept, the env's parameters changed
+    config = json.loads((out / "config.json").read_text())
+    config["env"]["params"]["max_steps"] += 1
+    (out / "config.json").write_text(json.dumps(config))
+
+
+def _damage_metrics_value(out):  # one digit of a checkpointed row, same length
+    path = out / "metrics.csv"
+    lines = path.read_text().splitlines(keepends=True)
+    lines[1] = lines[1].replace("0", "1", 1) if "0" in lines[1] else lines[1].replace("1", "2", 1)
+    path.write_text("".join(lines))
+
+
+def _damage_metrics_header(out):
+    path = out / "metrics.csv"
+    path.write_text(path.read_text().replace("eval/success", "eval/succes", 1))
+
+
+def _damage_checkpoint_deleted(out):
+    import shutil
+
+    shutil.rmtree(out / "checkpoint")
+
+
+def _damage_checkpoint_is_a_file(out):
+    import shutil
+
+    shutil.rmtree(out / "checkpoint")
+    (out / "checkpoint").write_text("x")
+
+
 DAMAGE = {
-    "metrics truncated mid-row": (_damage_metrics_truncate, "metrics.csv: damaged (line"),
+    "metrics truncated mid-row": (_damage_metrics_truncate, "metrics.csv: damaged (the rows"),
+    "metrics value edited": (_damage_metrics_value, "metrics.csv: damaged (the rows"),
+    "metrics header edited": (_damage_metrics_header, "metrics.csv: damaged (the rows"),
     "metrics deleted": (_damage_metrics_delete, "metrics.csv: missing"),
     "checkpoint byte flipped": (_damage_checkpoint_byte, "its SHA-256 differs"),
     "checkpoint metadata wrong": (_damage_checkpoint_meta, "no valid iteration"),
@@ -130,6 +163,9 @@ DAMAGE = {
         "its metadata says iteration 100, the state it holds is at iteration 200",
     ),
     "config.json garbage": (_damage_config, "config.json: damaged"),
+    "config.json edited": (_damage_config_edited, "env disagree with its identity"),
+    "checkpoint deleted": (_damage_checkpoint_deleted, "the checkpoint was deleted"),
+    "checkpoint a file": (_damage_checkpoint_is_a_file, "checkpoint: damaged (not a directory)"),
 }
 
 

@@ -206,7 +206,9 @@ def metric_rows(resolved: ResolvedRun, chunk_metrics, seeds: list[int], perf: di
     return rows
 
 
-def run_metadata(resolved: ResolvedRun) -> dict[str, Any]:
+def run_description(resolved: ResolvedRun) -> dict[str, Any]:
+    """What config.json says the run is (its identity, config and env); a resume checks
+    the saved file against it, so an edited config.json is refused, not believed."""
     return {
         "identity": resolved.identity(),
         "run_config": dataclasses.asdict(resolved.run),
@@ -217,6 +219,12 @@ def run_metadata(resolved: ResolvedRun) -> dict[str, Any]:
             "num_agents": resolved.env.num_agents,
             "optimal_team_return": getattr(resolved.env, "optimal_team_return", None),
         },
+    }
+
+
+def run_metadata(resolved: ResolvedRun) -> dict[str, Any]:
+    return {
+        **run_description(resolved),
         "pimbot_version": pimbot.__version__,
         "git_commit": store.git_commit(),
         "jax_version": jax.__version__,
@@ -239,14 +247,25 @@ def check_run_dir(run_dir: Path, resolved: ResolvedRun) -> None:
                 "choose a new or empty directory"
             )
         return
-    saved = store.read_json(config_path).get("identity")
-    wanted = json.loads(json.dumps(resolved.identity(), default=str))
+    config = store.read_json(config_path)
+    if not isinstance(config, dict):
+        raise store.DamagedRunDir(
+            f"{config_path}: damaged (not a JSON object); {store.RESTART_HINT}"
+        )
+    described = json.loads(json.dumps(run_description(resolved), default=str))
+    saved, wanted = config.get("identity"), described["identity"]
     if saved != wanted:
         keys = sorted(set(saved or {}) | set(wanted))
         diff = [k for k in keys if (saved or {}).get(k) != wanted.get(k)]
         raise RunDirConflict(
             f"out: {run_dir} holds a different run (differs in: {', '.join(diff)}); "
             "choose another directory or repeat the original command to resume it"
+        )
+    edited = [key for key in ("run_config", "env") if config.get(key) != described[key]]
+    if edited:
+        raise store.DamagedRunDir(
+            f"{config_path}: damaged ({' and '.join(edited)} disagree with its identity: "
+            f"the file was edited); {store.RESTART_HINT}"
         )
 
 
@@ -280,10 +299,14 @@ def _concat_periods(host: list) -> Any:
     return host[0] if len(host) == 1 else jax.tree.map(lambda *x: np.concatenate(x, 1), *host)
 
 
-def _start(resolved: ResolvedRun, run_dir: Path, periods: int, cache: ProgramCache):
+def _start(
+    resolved: ResolvedRun, run_dir: Path, periods: int, cache: ProgramCache, rows_ahead: int
+):
     """The seeds' states (initial or from the checkpoint), their evaluation keys, the
     iterations done, and the compiled call of `periods` evaluation periods with its
-    compile time (0 when this process had compiled the program already)."""
+    compile time (0 when this process had compiled the program already). Metric rows
+    more than `rows_ahead` iterations (one chunk) past the checkpoint mean the
+    checkpoint was deleted or replaced by an older one: refused."""
     run = resolved.run
     sharding, padded = seed_sharding(run.seeds)
     keys = seed_keys(run.first_seed, padded)
@@ -313,7 +336,12 @@ def _start(resolved: ResolvedRun, run_dir: Path, periods: int, cache: ProgramCac
                 f"{int(np.asarray(counted).reshape(-1)[0])}); {store.RESTART_HINT}"
             )
     # One row per seed and evaluation; fewer (deleted, truncated) refuse to resume.
-    store.truncate_rows(run_dir, done, expected_rows=run.seeds * (done // resolved.eval_period))
+    store.truncate_rows(
+        run_dir,
+        done,
+        expected_rows=run.seeds * (done // resolved.eval_period),
+        rows_ahead=rows_ahead,
+    )
     if sharding is not None:
         states = jax.device_put(states, sharding)
         eval_roots = jax.device_put(eval_roots, sharding)
@@ -398,7 +426,7 @@ def train(
     try:
         with CompileNotice(title, enabled=progress):  # init and chunk compile: 10-20 s
             states, eval_roots, done, chunk_fn, compile_s = _start(
-                program, run_dir, per_call, cache
+                program, run_dir, per_call, cache, rows_ahead=per_chunk * period
             )
         trackers.catch_up(done)
         bar = Progress(title, run.iterations, done, enabled=progress)

@@ -138,6 +138,10 @@ def save_checkpoint(run_dir: Path, state_bytes: bytes, iteration: int) -> None:
         "bytes": len(state_bytes),
         "sha256": hashlib.sha256(state_bytes).hexdigest(),
     }
+    metrics = run_dir / METRICS
+    if metrics.exists():  # the rows up to this checkpoint (fsynced before it)
+        rows = metrics.read_bytes()
+        meta.update(metrics_bytes=len(rows), metrics_sha256=hashlib.sha256(rows).hexdigest())
     write_json(ckpt / STATE_META, meta)
 
 
@@ -148,6 +152,8 @@ def load_checkpoint(run_dir: Path) -> tuple[bytes, int] | None:
         DamagedRunDir: the metadata is unreadable or the state bytes do not match it.
     """
     ckpt = run_dir / CHECKPOINT_DIR
+    if ckpt.exists() and not ckpt.is_dir():
+        raise DamagedRunDir(f"{ckpt}: damaged (not a directory); {RESTART_HINT}")
     if not (ckpt / STATE_META).exists() and not (ckpt / STATE_FILE).exists():
         return None
     if not (ckpt / STATE_META).exists() or not (ckpt / STATE_FILE).exists():
@@ -171,6 +177,14 @@ def append_rows(run_dir: Path, columns: list[str], rows: list[dict[str, Any]]) -
     """Appends metric rows, writing the header when the file is new."""
     path = run_dir / METRICS
     new = not path.exists()
+    if not new:
+        with open(path, newline="") as f:
+            header = next(csv.reader(f), [])
+        if header != columns:
+            raise DamagedRunDir(
+                f"{path}: damaged (its header is not this run's columns: the file was "
+                f"edited or another run wrote it); {RESTART_HINT}"
+            )
     with open(path, "a", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=columns)
         if new:
@@ -191,12 +205,19 @@ def _complete(row: dict[str, Any], columns: list[str]) -> bool:
     return True
 
 
-def truncate_rows(run_dir: Path, max_iteration: int, expected_rows: int | None = None) -> None:
+def truncate_rows(
+    run_dir: Path,
+    max_iteration: int,
+    expected_rows: int | None = None,
+    rows_ahead: int | None = None,
+) -> None:
     """Drops metric rows written after the checkpoint at `max_iteration`.
 
     Rows are fsynced before the checkpoint is saved, so only rows past the checkpoint can
     be missing or cut short by a crash; with `expected_rows` (the rows the checkpoint has
-    passed) fewer or incomplete rows up to it raise DamagedRunDir.
+    passed) fewer or incomplete rows up to it raise DamagedRunDir. A crash leaves at most
+    one chunk of rows past the checkpoint: with `rows_ahead` (a chunk's iterations), rows
+    further ahead raise DamagedRunDir (the checkpoint was deleted or is an older one).
     """
     path = run_dir / METRICS
     if not path.exists():
@@ -205,6 +226,8 @@ def truncate_rows(run_dir: Path, max_iteration: int, expected_rows: int | None =
                 f"{path}: missing, but the checkpoint is at iteration {max_iteration} "
                 f"({expected_rows} rows); {RESTART_HINT}"
             )
+        return
+    if _keep_checkpointed_bytes(run_dir, max_iteration):
         return
     with open(path, newline="") as f:
         reader = csv.DictReader(f)
@@ -218,7 +241,14 @@ def truncate_rows(run_dir: Path, max_iteration: int, expected_rows: int | None =
                         f"checkpoint at iteration {max_iteration}); {RESTART_HINT}"
                     )
                 break  # cut by a crash while appending rows past the checkpoint
-            if int(row["iteration"]) <= max_iteration:
+            iteration = int(row["iteration"])
+            if rows_ahead is not None and iteration > max_iteration + rows_ahead:
+                raise DamagedRunDir(
+                    f"{path}: holds rows up to iteration {iteration} or later, past the "
+                    f"checkpoint at iteration {max_iteration} (the checkpoint was deleted "
+                    f"or replaced by an older one); {RESTART_HINT}"
+                )
+            if iteration <= max_iteration:
                 rows.append(row)
     if expected_rows is not None and len(rows) != expected_rows:
         raise DamagedRunDir(
@@ -235,6 +265,29 @@ def truncate_rows(run_dir: Path, max_iteration: int, expected_rows: int | None =
         writer.writeheader()
         writer.writerows(rows)
     os.replace(tmp, path)
+
+
+def _keep_checkpointed_bytes(run_dir: Path, max_iteration: int) -> bool:
+    """Cuts metrics.csv back to the bytes the checkpoint recorded, after checking their
+    SHA-256 (any edited, deleted or reordered row before the checkpoint is refused);
+    False when the checkpoint recorded none (written by an older pimbot)."""
+    meta_path = run_dir / CHECKPOINT_DIR / STATE_META
+    meta = read_json(meta_path) if meta_path.exists() else None
+    size, digest = (meta.get("metrics_bytes"), meta.get("metrics_sha256")) if meta else (0, 0)
+    if not isinstance(size, int) or isinstance(size, bool) or not isinstance(digest, str):
+        return False
+    path = run_dir / METRICS
+    with open(path, "r+b") as f:
+        head = f.read(size)
+        if len(head) < size or hashlib.sha256(head).hexdigest() != digest:
+            raise DamagedRunDir(
+                f"{path}: damaged (the rows up to the checkpoint at iteration {max_iteration} "
+                f"were changed, cut or deleted); {RESTART_HINT}"
+            )
+        f.truncate(size)  # rows appended after the checkpoint (a crash) go
+        f.flush()
+        os.fsync(f.fileno())
+    return True
 
 
 def read_metrics(run_dir: Path) -> list[dict[str, str]]:
