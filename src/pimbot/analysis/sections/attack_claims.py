@@ -19,6 +19,7 @@ group's LIO runs (and the original code's runs where its logs cover a setting).
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 
@@ -50,17 +51,17 @@ class Runs:
 
     table: RunTable
     by: dict[tuple[str, str], RunRecord]
-    curves: dict[str, Curves] = dataclasses.field(default_factory=dict)
+    curves: dict[Path, Curves] = dataclasses.field(default_factory=dict)
+    """Curves read so far, by run directory (pimbot's and the original code's)."""
+    reachable_cache: dict[tuple, bool] = dataclasses.field(default_factory=dict)
 
     def get(self, env: str, condition: str) -> RunRecord | None:
         return self.by.get((env, condition))
 
     def of(self, run: RunRecord) -> Curves:
-        if run.name not in self.curves:
-            self.curves[run.name] = judging.read_curves(run.path)
-        return self.curves[run.name]
-
-    reachable_cache: dict[tuple, bool] = dataclasses.field(default_factory=dict)
+        if run.path not in self.curves:
+            self.curves[run.path] = judging.read_curves(run.path)
+        return self.curves[run.path]
 
     def original(self, env: str, condition: str, horizon: int | None = None) -> RunRecord | None:
         run = self.get(env, condition)

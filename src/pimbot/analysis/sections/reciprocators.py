@@ -186,7 +186,7 @@ def c7(runs: list[RunRecord]) -> Claim:
             Comparison(
                 f"{env} clean → ADMO success",
                 f"{clean.iterations:,} updates",
-                f"≥ {BASELINE:g} → < {C7_TARGETS.get(env, '–')}",
+                f"≥ {BASELINE:g}" + (f" → < {C7_TARGETS[env]:g}" if env in C7_TARGETS else ""),
                 None,
                 f"{base.mean:.2f} → {attacked.mean:.2f}",
             )
@@ -261,7 +261,7 @@ def baseline_shortfall(runs, env, clean, base) -> verdicts.Verdict:
     if scores:
         return verdicts.refuted(
             verdicts.BUDGET,
-            f"clean {base} at our setting; another setting reaches {max(scores):.2f}",
+            f"clean {base} at our setting; at the original code's settings {max(scores):.2f}",
         )
     return verdicts.refuted(
         verdicts.IMPLEMENTATION, f"clean {base} (no run at the original code's settings)"
