@@ -41,7 +41,12 @@ JOBS = [
         ("C3",),
     ),
     Job("attacks/ipd_clean", "train", RunConfig(env_id="ipd-v0", **TINY), ("C1",)),
-    Job("profile/er21_paired", "profile", ProfileConfig(duration_s=1.0, hidden=(32,)), ("C8",)),
+    Job(
+        "profile/er21_paired",
+        "profile",
+        ProfileConfig(duration_s=1.0, hidden=(32,), cadences=(10,), rounds=2),
+        ("C8",),
+    ),
     Job(
         "robot/er21_clean",
         "robot_eval",
@@ -193,7 +198,7 @@ def test_report_html_renders_every_figure_in_headless_chromium(reference, tmp_pa
     assert len(figures) >= 6  # fig1, fig1b, fig2, fig3, fig8, fig9 from this suite
     for figure in figures:
         assert f"{report.FIGURES}/{figure.name}" in markdown
-    assert "| C8 |" in markdown and "| C1 |" in markdown
+    assert "| C8 |" in markdown and "| C1a |" in markdown and "| C1b |" in markdown
 
     executable = _chromium()
     if executable is None:

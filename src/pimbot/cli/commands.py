@@ -16,6 +16,7 @@ from typing import Annotated, Literal
 import tyro
 
 from pimbot.contracts.params import check_int, check_number
+from pimbot.envs.core import InvalidParameter
 
 PAIRS = "pimbot:name=value"
 """Marks a field holding `name=value` strings; a --config file may give it a table."""
@@ -178,15 +179,15 @@ def build(choices: Choices) -> dict:
         env_params: _PositionalPairs = ()
         """Environment parameters, e.g. n_agents=4 min_at_lever=2."""
         controller: Literal[choices.controllers] = "benign"
-        """benign: plain LIO; admo: ADMO on agent 0."""
+        """benign: plain LIO; admo: ADMO on agent 0; admo_code: the published code's ADMO."""
         duration: float = 20.0
         """Steady-state seconds per controller (> 0)."""
         hidden: tuple[int, ...] = (256, 128)
         """Hidden widths of the policy and incentive MLPs (each ≥ 1)."""
         action_repeat: int = 2
         """Environment steps per decision (≥ 1)."""
-        update_every: int = 100
-        """Decisions between learner update steps (≥ 1)."""
+        update_every: tuple[int, ...] = (2, 10, 100)
+        """Decisions per learner update, one interleaved segment each (each ≥ 1)."""
         pin_cpu: Annotated[str | None, tyro.conf.arg(metavar="CPUS")] = None
         """Pin the process to these CPUs, e.g. 0,2-3."""
         sample_hz: float = 1.0
@@ -201,13 +202,17 @@ def build(choices: Choices) -> dict:
         """Run directory (created)."""
 
         def int_bounds(self) -> dict[str, int]:
-            return {"action_repeat": 1, "update_every": 1, "seed": 0}
+            return {"action_repeat": 1, "seed": 0}
 
         def __post_init__(self) -> None:
             super().__post_init__()
-            if self.hidden is not tyro.MISSING:
-                for i, width in enumerate(self.hidden):
-                    check_int(f"hidden[{i}]", width, 1)
+            for name in ("hidden", "update_every"):
+                values = getattr(self, name)
+                if values is not tyro.MISSING:
+                    if not values:
+                        raise InvalidParameter(f"{name}: give at least one value")
+                    for i, value in enumerate(values):
+                        check_int(f"{name}[{i}]", value, 1)
 
         def positive_numbers(self) -> tuple[str, ...]:
             return ("duration", "sample_hz")

@@ -168,7 +168,7 @@ def cmd_profile(args) -> int:
         duration_s=args.duration,
         hidden=tuple(args.hidden),
         action_repeat=args.action_repeat,
-        cadences=(args.update_every,),
+        cadences=tuple(args.update_every),
         seed=args.seed,
     )
     if args.pin_cpu is not None:

@@ -165,6 +165,12 @@ def profile_status(path: Path, spec) -> str:
     )
 
 
+def _controllers() -> tuple[str, ...]:
+    from pimbot.profiling import CONTROLLERS  # jax and the learners: only when needed
+
+    return CONTROLLERS
+
+
 def profile_execute(
     path: Path, spec, suite_dir: Path, options: JobOptions, shared: Any = None
 ) -> dict[str, Any]:
@@ -230,8 +236,8 @@ KINDS = {
         profile_status,
         profile_execute,
         lambda path, spec: 0.0,
-        lambda spec: 2.0 * spec.duration_s * 5e3,
-        lambda spec: f"paired profile (benign, ADMO), {spec.duration_s:g} s each",
+        lambda spec: len(_controllers()) * spec.duration_s * 5e3,
+        lambda spec: f"paired profile ({', '.join(_controllers())}), {spec.duration_s:g} s each",
     ),
     "robot_eval": Kind(
         robot_status,
