@@ -254,7 +254,9 @@ def parse_defenses(
 def parse_hparams(learner: str, pairs: list[str]) -> tuple[tuple[str, str], ...]:
     """Splits `name=value` hyperparameter overrides (typed later against the defaults)."""
     names = {f.name: None for f in dataclasses.fields(learners.get(learner).config_cls)}
-    return tuple((name, value) for name, value in _split_pairs(pairs, names, learner))
+    return tuple(
+        (name, value) for name, value in _split_pairs(pairs, names, f"hyperparameter of {learner}")
+    )
 
 
 def _split_pairs(pairs: list[str], allowed: dict[str, Any], what: str):
