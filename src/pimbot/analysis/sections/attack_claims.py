@@ -114,10 +114,6 @@ class Runs:
             )
         return self.reachable_cache[key]
 
-    def conditions(self, attack: str) -> list[str]:
-        """Conditions of runs whose config names `attack` (admo_stealthy, admo_code_…)."""
-        return sorted({r.condition for r in self.by.values() if r.attack == attack})
-
 
 def claims(table: RunTable, runs: list[RunRecord]) -> list[Claim]:
     data = Runs(table, {(r.env, r.condition): r for r in runs})
@@ -434,14 +430,22 @@ def exit_success_margin(run: RunRecord, base: RunRecord | None):
     return estimate(own), difference(own, np.mean(per_agent, axis=0))
 
 
-def admo_parts(data: Runs, condition_of: dict[str, str]) -> tuple[dict[str, Verdict], list]:
-    """The C5 parts for one ADMO attack; `condition_of` maps "stealthy"/"disrupt" to the
-    attack's condition labels present. Returns (parts, table rows)."""
+def mode_of(run: RunRecord) -> str:
+    """An ADMO run's mode (its attack parameter; "" where the attack has none)."""
+    return str(run.identity["attack_params"].get("mode", ""))
+
+
+def admo_parts(data: Runs, attack: str) -> tuple[dict[str, Verdict], list]:
+    """The C5 parts for one ADMO attack (its runs found by the attack name in their
+    configs, whatever their labels); an attack run in one mode only is judged on every part
+    in it. Returns (parts, table rows)."""
+    mine = [r for r in data.by.values() if r.attack == attack]
+    single = len({mode_of(r) for r in mine}) == 1
     parts, rows = {}, []
     for env in ROOMS:
-        for mode, condition in condition_of.items():
-            run, base = data.get(env, condition), data.get(env, CLEAN)
-            if run is None or base is None:
+        for run in sorted((r for r in mine if r.env == env), key=lambda r: r.condition):
+            mode, condition, base = mode_of(run), run.condition, data.get(env, CLEAN)
+            if base is None:
                 continue
             margin = estimate(run.per_seed("eval/adversary_margin_env"), 2, signed=True)
             own, own_gain = exit_success_margin(run, base)
@@ -462,7 +466,7 @@ def admo_parts(data: Runs, condition_of: dict[str, str]) -> tuple[dict[str, Verd
                     f"{steps:.2f} ({(steps - clean_steps) / clean_steps:+.0%})",
                 ]
             )
-            if mode == "stealthy" or len(condition_of) == 1:
+            if mode == "stealthy" or single:
                 parts[f"{env} {condition} margin"] = judging.above(
                     margin, 0.0, "margin"
                 ) or verdicts.refuted(verdicts.IMPLEMENTATION, f"margin {margin} not above 0")
@@ -486,7 +490,7 @@ def admo_parts(data: Runs, condition_of: dict[str, str]) -> tuple[dict[str, Verd
                     )
                 )
             change = abs(steps - clean_steps) / clean_steps
-            if mode == "disrupt" and len(condition_of) > 1:
+            if mode == "disrupt" and not single:
                 continue  # the paper's ADMO raises its own gain: steps judged on that mode
             parts[f"{env} {condition} steps"] = (
                 verdicts.reproduced(f"steps {change:.0%} from clean")
@@ -495,10 +499,8 @@ def admo_parts(data: Runs, condition_of: dict[str, str]) -> tuple[dict[str, Verd
                     verdicts.IMPLEMENTATION, f"steps change {change:.0%} > {MODEST:.0%}"
                 )
             )
-    for condition in condition_of.values():
-        run = data.get("IPD(2)", condition)
-        if run is None:
-            continue
+    for run in sorted((r for r in mine if r.env == "IPD(2)"), key=lambda r: r.condition):
+        condition = run.condition
         curves = data.of(run)
         change = estimate(curves.final("eval/success") - curves.first("eval/success"), signed=True)
         flat = change.lo >= -FLAT and change.hi <= FLAT
@@ -515,14 +517,8 @@ def admo_parts(data: Runs, condition_of: dict[str, str]) -> tuple[dict[str, Verd
 def c5(data: Runs) -> Claim:
     attacks = {}
     for attack in ADMO_ATTACKS:
-        conditions = data.conditions(attack)
-        if not conditions:
-            continue
-        modes = {
-            ("disrupt" if "disrupt" in c else "stealthy" if "stealthy" in c else c): c
-            for c in conditions
-        }
-        attacks[attack] = admo_parts(data, modes)
+        if any(r.attack == attack for r in data.by.values()):
+            attacks[attack] = admo_parts(data, attack)
     if "admo" not in attacks:
         return Claim(
             "C5",
@@ -587,9 +583,7 @@ def _classified(name: str, verdict: Verdict, code_parts: dict[str, Verdict]) -> 
 def admo_table(data: Runs) -> Table | None:
     rows = []
     for attack in ADMO_ATTACKS:
-        conditions = data.conditions(attack)
-        modes = {c: c for c in conditions}
-        rows += admo_parts(data, modes)[1]
+        rows += admo_parts(data, attack)[1]
     if not rows:
         return None
     header = ["env", "condition", "seeds", "adversary margin [interval]"]
