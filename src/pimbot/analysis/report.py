@@ -386,9 +386,33 @@ def comparison_table(claims: list[Claim]) -> Table | None:
     return Table(header, rows, "Paper | original code | pimbot", COMPARISON_NOTE, "claims_numbers")
 
 
+REASON_CHARS = 320
+"""A verdict's reason longer than this is cut in the claims table (in full below it)."""
+
+
+def _reason(claim: Claim) -> str:
+    """The verdict's reason as the claims table shows it ("" for not run)."""
+    reason = claim.judged.reason if claim.judged.kind != verdicts.NOT_RUN else ""
+    if len(reason) <= REASON_CHARS:
+        return reason
+    cut = reason.rfind("; ", 0, REASON_CHARS)
+    return reason[: cut if cut > 0 else REASON_CHARS] + "; … (in full below)"
+
+
 def _details(claim: Claim) -> bool:
-    """Whether the claim's measured numbers go below the table (its summary is shorter)."""
-    return bool(claim.summary) and claim.summary != claim.measured
+    """Whether the claim's measured numbers (or its verdict's reason) go below the table."""
+    shorter = bool(claim.summary) and claim.summary != claim.measured
+    return shorter or _reason(claim) != (
+        claim.judged.reason if claim.judged.kind != verdicts.NOT_RUN else ""
+    )
+
+
+def _in_full(claim: Claim) -> str:
+    """The details line: every number measured, and the verdict's reason where it was cut."""
+    text = claim.measured
+    if _reason(claim) != claim.judged.reason and claim.judged.kind != verdicts.NOT_RUN:
+        text += f". Verdict: {claim.judged}"
+    return text
 
 
 def _claim_anchor(claim: Claim) -> str:
@@ -475,12 +499,12 @@ def render_markdown(report: Report) -> str:
         lines += [anchor("Claims"), "## Claims", ""]
         rows = []
         for c in report.claims:
-            measured = c.summary if _details(c) else c.measured
+            measured = (c.summary or c.measured) if _details(c) else c.measured
             if _details(c):
                 measured += f" ([details](#{_claim_anchor(c)}))"
             verdict = f"**{marked_verdict(c.verdict)}**"
-            if c.judged.reason and c.judged.kind != verdicts.NOT_RUN:
-                verdict += f" — {c.judged.reason}"
+            if _reason(c):
+                verdict += f" — {_reason(c)}"
             rows.append([c.id, c.claim, c.rule, measured, verdict])
         header = ["claim", "published", "rule", "measured", "verdict"]
         lines += markdown_lines(Table(header, rows))
@@ -492,7 +516,9 @@ def render_markdown(report: Report) -> str:
         details = [c for c in report.claims if _details(c)]
         if details:
             lines += ["Measured, in full:", ""]
-            lines += [f'- <a id="{_claim_anchor(c)}"></a>**{c.id}**: {c.measured}' for c in details]
+            lines += [
+                f'- <a id="{_claim_anchor(c)}"></a>**{c.id}**: {_in_full(c)}' for c in details
+            ]
             lines.append("")
     for section in report.sections:
         lines += section_lines(section)
@@ -511,7 +537,8 @@ nav.toc ul { margin: 0.2em 0; padding-left: 1.2em; } nav.toc > ul { columns: 2; 
 nav.toc ul ul { font-size: 0.92em; color: #555; }
 table.claims td.rule { font-size: 0.9em; color: #555; max-width: 22em; }
 table.claims td.measured { max-width: 24em; }
-td.verdict { font-weight: 600; min-width: 11em; }
+td.verdict { font-weight: 600; min-width: 11em; max-width: 26em; }
+table.claims td.rule { min-width: 13em; }
 td.verdict .mark { display: inline-block; width: 1.2em; text-align: center; }
 .reproduced { background: #e3f4e6; color: #1b5e20; border-left: 5px solid #2e7d32; }
 .reproduced-at-budget { background: #eef6e3; color: #33691e; border-left: 5px double #558b2f; }
@@ -529,7 +556,7 @@ figcaption { font-size: 0.9em; color: #555; }
 def _verdict_cell(claim: Claim) -> str:
     judged = claim.judged
     label = judged.label if isinstance(claim.verdict, verdicts.Verdict) else claim.verdict
-    reason = judged.reason if judged.kind != verdicts.NOT_RUN else ""
+    reason = _reason(claim)
     why = f"<br><span class='reason'>{html.escape(reason)}</span>" if reason else ""
     return (
         f"<td class='verdict {judged.kind}'><span class='mark'>{VERDICTS[judged.kind]}</span> "
@@ -541,7 +568,7 @@ def _claims_html(claims: list[Claim]) -> str:
     head = "".join(f"<th>{h}</th>" for h in ("claim", "published", "rule", "measured", "verdict"))
     rows = []
     for c in claims:
-        measured = html.escape(c.summary if _details(c) else c.measured)
+        measured = html.escape((c.summary or c.measured) if _details(c) else c.measured)
         if _details(c):
             measured += f" <a href='#{_claim_anchor(c)}'>details</a>"
         rows.append(
@@ -558,7 +585,7 @@ def _claims_html(claims: list[Claim]) -> str:
     details = [c for c in claims if _details(c)]
     if details:
         items = "".join(
-            f"<li id='{_claim_anchor(c)}'><b>{html.escape(c.id)}</b>: {html.escape(c.measured)}"
+            f"<li id='{_claim_anchor(c)}'><b>{html.escape(c.id)}</b>: {html.escape(_in_full(c))}"
             "</li>"
             for c in details
         )
