@@ -165,6 +165,9 @@ def test_verdict_kinds_are_styled_and_marked(built):
         Claim("C4", "d", "r", "m", verdicts.not_run("0/1 runs finished")),
         Claim("C5", "e", "r", "m", verdicts.refuted(verdicts.SPEC, "0.2 < 0.8")),
         Claim("C6", "f", "r", "m", verdicts.at_budget("0.01 at 25k, 0.4 at 50k")),
+        Claim(
+            "C7", "g", "r", "m", verdicts.inconclusive("; ".join(f"part {k}" for k in range(99)))
+        ),
     ]
     assert [document.verdict_kind(c.verdict) for c in claims] == [
         "reproduced",
@@ -173,6 +176,7 @@ def test_verdict_kinds_are_styled_and_marked(built):
         "not-run",
         "refuted",
         "reproduced-at-budget",
+        "inconclusive",
     ]
     provenance = Section("Provenance", tables=[])
     provenance.tables = [report.Table(["a"], [], "x"), report.Table(["a"], [], "y")]
@@ -189,6 +193,12 @@ def test_verdict_kinds_are_styled_and_marked(built):
     assert "**✘ refuted — cause: our spec** — 0.2 < 0.8" in markdown
     assert "**✔ reproduced at the paper's budget** — 0.01 at 25k" in markdown
     assert "<span class='reason'>0.2 &lt; 0.8</span>" in page
+    # A long reason is cut in the table, given in full under it.
+    assert (
+        "part 40; … (in full below)" in markdown and "part 98" not in markdown.split("Measured")[0]
+    )
+    assert "**C7**: m. Verdict: inconclusive (too few seeds or iterations): part 0;" in markdown
+    assert "part 98" in markdown
     # A compact measured cell; the full text below the table, linked.
     assert "| short ([details](#claim-c2)) |" in markdown
     assert '<a id="claim-c2"></a>**C2**: long measured text' in markdown

@@ -171,7 +171,7 @@ def summary_table(run_dirs: list[Path]) -> str:
                 f"{conv['converged_seeds']}/{len(summary['seeds'])}",
                 f"{fmt(conv['median'], 0)} {iqr}",
                 fmt(conv["first_crossing_median"], 0),
-                f"{summary['iters_per_s_mean']:.0f}",
+                fmt(summary["iters_per_s_mean"], 0),  # None: not timed (an original-code log)
             ]
         )
     header = [
