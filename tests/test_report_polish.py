@@ -195,7 +195,7 @@ def test_verdict_kinds_are_styled_and_marked(built):
     assert "<span class='reason'>0.2 &lt; 0.8</span>" in page
     # A long reason is cut in the table, given in full under it.
     assert (
-        "part 40; … (in full below)" in markdown and "part 98" not in markdown.split("Measured")[0]
+        "part 35; … (in full below)" in markdown and "part 98" not in markdown.split("Measured")[0]
     )
     assert "**C7**: m. Verdict: inconclusive (too few seeds or iterations): part 0;" in markdown
     assert "part 98" in markdown
