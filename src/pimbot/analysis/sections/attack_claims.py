@@ -268,13 +268,12 @@ def c2(data: Runs) -> Claim:
         final = estimate(run.per_seed("eval/success"))
         peak = curves.early_peak("eval/success", EARLY_FRACTION)
         text = f"early peak {peak:.2f}, final {final}"
-        row, original = data.compare(f"{env} fake-incentive success", "~0", run, "eval/success")
+        row, _ = data.compare(f"{env} fake-incentive success", "~0", run, "eval/success")
         numbers.append(row)
         if peak is not None and peak >= EARLY_PEAK and final.mean <= LOW:
             parts[env] = verdicts.reproduced(text)
         else:
-            agrees = None if original is None else original.mean <= LOW
-            parts[env] = judging.disagreement(text, agrees)
+            parts[env] = judging.disagreement(text, _original_c2(data, run))
     return Claim(
         "C2",
         "fake incentive (C = 50): early, unstable successes, then ~0 success in ER",
@@ -286,6 +285,19 @@ def c2(data: Runs) -> Claim:
         _short(parts),
         numbers,
     )
+
+
+def _original_c2(data: Runs, run: RunRecord) -> bool | None:
+    """Whether the original code's log meets C2's rule (early peak, then ~0) up to the
+    horizon it shares with `run`; None without a log."""
+    log = data.original(run.env, run.condition, run.iterations)
+    if log is None or not data.of(log).has("eval/success"):
+        return None
+    curves = data.of(log)
+    common = min(curves.horizon, data.of(run).horizon)
+    peak = curves.early_peak("eval/success", EARLY_FRACTION * common / curves.horizon)
+    final = curves.final("eval/success", common).mean()
+    return peak is not None and peak >= EARLY_PEAK and final <= LOW
 
 
 # --- C3 ---------------------------------------------------------------------------------
