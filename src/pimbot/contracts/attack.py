@@ -13,7 +13,10 @@ in `hooks`, so a learner that does not consult a hook refuses it by name:
 * `policy_sign`      — +1 ascends, −1 descends, 0 freezes an agent's policy step;
 * `adversary_step`   — replaces the adversary's update (a learning attack),
                        given an `AdversaryView` the learner builds;
-* `observe`          — updates the attack's per-seed state once per iteration.
+* `observe`          — updates the attack's per-seed state once per iteration;
+* `update_schedule`  — every agent's number of update epochs and the scale of its
+                       shaped-reward weight, before a multi-epoch update (the
+                       Reciprocator's PPO), given an `AdversaryView` of the batch.
 
 Every hook gets the attack's per-seed state (`init_state`, kept in the learner
 state) and, where randomness may be needed, its own PRNG key, derived from the
@@ -35,8 +38,17 @@ from flax import struct
 from pimbot.contracts.registry import Registry
 from pimbot.envs.core import InvalidParameter
 
-HOOKS = ("act", "emit", "learning_rewards", "policy_sign", "adversary_step", "observe")
-"""Every attack hook point, in the order a learner's iteration meets them."""
+HOOKS = (
+    "act",
+    "emit",
+    "learning_rewards",
+    "policy_sign",
+    "adversary_step",
+    "observe",
+    "update_schedule",
+)
+"""Every attack hook point (the first six in the order a learner's iteration meets them;
+`update_schedule` comes before the Reciprocator's `learning_rewards`)."""
 
 ATTACK_STREAM = 0x5A7
 """`fold_in` data of the attack's keys: derived from a learner key without splitting it."""
@@ -120,6 +132,22 @@ class Decision:
     """Size of every agent's action set."""
     env_step: jax.Array
     """int32 [] environment steps taken in training before this decision."""
+
+
+@dataclasses.dataclass(frozen=True)
+class UpdateSchedule:
+    """What `update_schedule` returns: how every agent's next multi-epoch update runs."""
+
+    epochs: jax.Array
+    """int32 [N] full-batch epochs of every agent's update (1 ≤ epochs ≤ `most_epochs`)."""
+    reward_weight_scale: jax.Array
+    """[N] factor on every agent's shaped-reward weight (Reciprocator: the reciprocal
+    weight w)."""
+    most_epochs: int
+    """Static bound of `epochs`: the learner runs this many epochs and keeps each agent's
+    first `epochs[i]`."""
+    metrics: dict[str, jax.Array]
+    """`attack/`-style float32 scalars of the iteration."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -209,6 +237,25 @@ class Attack:
         """The state after an iteration (identity by default)."""
         del key, outcome
         return state
+
+    def update_schedule(
+        self, state: Any, key: jax.Array, view: AdversaryView, ordinary_epochs: int
+    ) -> UpdateSchedule:
+        """Every agent's epochs and reward-weight scale of the coming update (default: the
+        learner's own `ordinary_epochs` and scale 1 for everyone).
+
+        `view` shows the batch the update learns from, before the update (the adversary's
+        row is its current ω). Only consulted for attacks listing "update_schedule" in
+        `hooks`: a learner runs its ordinary update program otherwise.
+        """
+        del state, key
+        n = view.env_rewards.shape[-1]
+        return UpdateSchedule(
+            epochs=jnp.full((n,), ordinary_epochs, jnp.int32),
+            reward_weight_scale=jnp.ones((n,)),
+            most_epochs=ordinary_epochs,
+            metrics={},
+        )
 
 
 NO_ATTACK = Attack()

@@ -22,7 +22,10 @@ Attacks act through the adversary's actions (bypass), its learning reward
 (self-centered: it learns from env reward only, i.e. it is a naive learner),
 the sign of its policy loss (reverse), or replace its policy update through
 the `AdversaryView` of the batch (ADMO on θ_a; the signal the adversary
-"receives" is the influence others exert on it). There is no incentive channel.
+"receives" is the influence others exert on it), or schedule every agent's PPO
+epochs and the scale of its reciprocal weight before step 4 from the same view
+of the batch, before the update (`update_schedule`; the published code's ADMO).
+There is no incentive channel.
 """
 
 from __future__ import annotations
@@ -49,7 +52,7 @@ from pimbot.contracts.attack import (
 from pimbot.contracts.defense import NO_DEFENSE, Defenses
 from pimbot.contracts.learner import Actor
 from pimbot.envs.core import Env, InvalidParameter
-from pimbot.learners import exact_voi, influence, tabular
+from pimbot.learners import epoch_schedule, exact_voi, influence, tabular
 from pimbot.learners.pg import act_fn, evaluate_actor
 from pimbot.rollout import Trajectory, discounted_returns, episode_metrics, rollout
 
@@ -192,7 +195,11 @@ def init(
     return ReciprocatorState(
         policy=policy,
         value=value,
-        opt=optax.adam(cfg.lr).init((policy, value)),
+        opt=(
+            epoch_schedule.init(cfg.lr, (policy, value))  # per-agent epoch counts
+            if "update_schedule" in attack.hooks
+            else optax.adam(cfg.lr).init((policy, value))
+        ),
         models=models,
         replay=replay,
         attack_state=attack_state,
@@ -247,11 +254,13 @@ def ppo_loss(params, modules, obs, actions, old_log_probs, returns, valid, sign,
     return jnp.sum(sign * policy_loss + cfg.value_coef * value_loss)
 
 
-def ppo_update(env, cfg, policy, value, opt, trajs: Trajectory, returns, sign):
+def ppo_update(env, cfg, policy, value, opt, trajs: Trajectory, returns, sign, schedule=None):
     """`ppo_epochs` full-batch Adam steps of `ppo_loss` on a batch of episodes.
 
     Args:
-        trajs: leaves [E, T, ...]; returns: [E, T, N] normalized returns; sign: [N].
+        trajs: leaves [E, T, ...]; returns: [E, T, N] normalized returns; sign: [N];
+        schedule: an attack's `UpdateSchedule` (per-agent epochs; `opt` then holds Adam
+            states per agent, `epoch_schedule.init`), or None: `ppo_epochs` for all.
     Returns:
         (policy, value, opt).
     """
@@ -265,6 +274,16 @@ def ppo_update(env, cfg, policy, value, opt, trajs: Trajectory, returns, sign):
     old = jnp.take_along_axis(jax.nn.log_softmax(logits), actions[..., None], axis=-1)[..., 0]
     optimizer = optax.adam(cfg.lr)
     grad_fn = jax.grad(ppo_loss)
+    if schedule is not None:
+        (policy, value), opt = epoch_schedule.run(
+            lambda params: grad_fn(params, modules, obs, actions, old, targets, valid, sign, cfg),
+            cfg.lr,
+            (policy, value),
+            opt,
+            schedule.epochs,
+            schedule.most_epochs,
+        )
+        return policy, value, opt
 
     def epoch(carry, _):
         params, opt = carry
@@ -432,10 +451,17 @@ def update(
     _, reciprocal = jax.vmap(
         lambda v: influence.balance_and_reciprocal_reward(v, cfg.gamma, cfg.grudge)
     )(voi)
-    # 4. PPO on env + w · reciprocal reward (attack hooks: learning_rewards, policy_sign)
-    rewards = attack.learning_rewards(
-        state.attack_state, trajs.env_rewards, cfg.reciprocal_weight * reciprocal
-    )
+    # 4. PPO on env + w · reciprocal reward (attack hooks: update_schedule, learning_rewards,
+    # policy_sign); without an `update_schedule` the ordinary program, unchanged
+    schedule, weight = None, cfg.reciprocal_weight
+    if "update_schedule" in attack.hooks:
+        success = jax.vmap(lambda t: episode_metrics(env, t))(trajs)["success"].mean()
+        view = adversary_view(env, cfg, attack, state.policy, trajs, voi, success, state.iteration)
+        schedule = attack.update_schedule(
+            state.attack_state, attack_key(fit_key), view, cfg.ppo_epochs
+        )
+        weight = cfg.reciprocal_weight * schedule.reward_weight_scale  # [N]
+    rewards = attack.learning_rewards(state.attack_state, trajs.env_rewards, weight * reciprocal)
     returns = normalized_returns(rewards, trajs.valid, cfg.gamma)
     sign = attack.policy_sign(state.attack_state, env.num_agents)
     if cfg.voi == "exact":  # a matrix game: the same PPO loss, summed per state
@@ -453,10 +479,11 @@ def update(
             jnp.moveaxis(returns, 2, 0).reshape(n, -1),
             trajs.valid.reshape(-1),
             sign,
+            schedule,
         )
     else:
         policy, value, opt = ppo_update(
-            env, cfg, state.policy, state.value, state.opt, trajs, returns, sign
+            env, cfg, state.policy, state.value, state.opt, trajs, returns, sign, schedule
         )
 
     per_episode = jax.vmap(lambda t: episode_metrics(env, t))(trajs)
@@ -473,6 +500,7 @@ def update(
         / count,
         **fit_metrics,
         **voi_metrics(voi, trajs.actions, trajs.valid, env.num_actions),
+        **(schedule.metrics if schedule is not None else {}),
     }
     # 5. a learning attack replaces the adversary's update (attack hook: adversary_step)
     attack_state = state.attack_state
@@ -505,7 +533,9 @@ def update(
 
 
 def adversary_view(env, cfg, attack, policy, trajs, voi, success, iteration) -> AdversaryView:
-    """What a learning attack sees: the batch it was played on (ω = θ_a, r = env reward)."""
+    """What a learning attack sees: the batch it was played on (ω = θ_a, r = env reward),
+    at the stacked `policy` (before PPO for `update_schedule`, after it for
+    `adversary_step`)."""
     policy_module = _modules(env, cfg)[0]
     a = attack.adversary
 
@@ -517,7 +547,7 @@ def adversary_view(env, cfg, attack, policy, trajs, voi, success, iteration) -> 
         return taken[..., 0]
 
     return AdversaryView(
-        policy=policy,  # the adversary's row is unchanged by PPO: its policy sign is 0
+        policy=policy,  # after PPO for `adversary_step` (the adversary's sign is then 0)
         incentive=None,
         log_probs=log_probs,
         env_rewards=trajs.env_rewards,

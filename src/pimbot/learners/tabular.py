@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import optax
 
 from pimbot import nets
-from pimbot.learners import exact_voi
+from pimbot.learners import epoch_schedule, exact_voi
 from pimbot.rollout import Trajectory, step_metric_names
 
 
@@ -88,13 +88,17 @@ def play(env, logits: jax.Array, key: jax.Array, num_envs: int) -> Trajectory | 
     )
 
 
-def ppo_update(modules, cfg, tables, policy, value, opt, states, actions, returns, valid, sign):
+def ppo_update(
+    modules, cfg, tables, policy, value, opt, states, actions, returns, valid, sign, schedule=None
+):
     """`cfg.ppo_epochs` full-batch Adam steps of the PPO loss, regrouped per state.
 
     Args:
         modules: (policy, value) networks; tables: the game's `exact_voi.GameTables`;
         states: float [S, K] one-hot dense states; actions: int [N, S]; returns: [N, S]
-        normalized returns; valid: bool [S]; sign: [N] (the policy term's sign per agent).
+        normalized returns; valid: bool [S]; sign: [N] (the policy term's sign per agent);
+        schedule: an attack's `UpdateSchedule` (per-agent epochs; `opt` then holds Adam
+        states per agent, `epoch_schedule.init`), or None: `ppo_epochs` for all.
     Returns:
         (policy, value, opt).
     """
@@ -133,6 +137,11 @@ def ppo_update(modules, cfg, tables, policy, value, opt, states, actions, return
 
     optimizer = optax.adam(cfg.lr)
     grad_fn = jax.grad(loss_fn)
+    if schedule is not None:
+        (policy, value), opt = epoch_schedule.run(
+            grad_fn, cfg.lr, (policy, value), opt, schedule.epochs, schedule.most_epochs
+        )
+        return policy, value, opt
 
     def epoch(carry, _):
         params, opt = carry
