@@ -416,9 +416,14 @@ def test_admo_code_takes_the_ordinary_incentive_step_then_the_scheduled_extra_on
         np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-4, atol=1e-7)
 
 
-def test_admo_code_needs_an_incentive_channel():
+def test_admo_code_needs_an_incentive_channel_or_an_epoch_schedule():
+    """LIO (incentive steps) and the Reciprocator (PPO epochs) run it; PG has neither."""
     from pimbot.experiment.config import RunConfig, resolve
 
-    for learner in ("reciprocator", "pg"):
-        with pytest.raises(envs.InvalidParameter, match="admo_code acts at the hook point"):
-            resolve(RunConfig("escape_room-v0", learner=learner, attack="admo_code"))
+    with pytest.raises(
+        envs.InvalidParameter, match="admo_code acts at the hook point.s. update_schedule"
+    ):
+        resolve(RunConfig("escape_room-v0", learner="pg", attack="admo_code"))
+    for learner in ("lio", "reciprocator", "nl"):
+        resolved = resolve(RunConfig("escape_room-v0", learner=learner, attack="admo_code"))
+        assert resolved.attack.name == "admo_code"

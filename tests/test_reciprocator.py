@@ -10,10 +10,10 @@ import pytest
 
 from pimbot import envs, learners
 from pimbot.attacks import ADMO, Bypass, Reverse
-from pimbot.contracts.attack import NO_ATTACK
+from pimbot.contracts.attack import NO_ATTACK, UpdateSchedule
 from pimbot.envs.core import InvalidParameter
 from pimbot.experiment.config import RunConfig, resolve
-from pimbot.learners import exact_voi, influence, reciprocator, tabular
+from pimbot.learners import epoch_schedule, exact_voi, influence, reciprocator, tabular
 from pimbot.rollout import rollout
 
 IPD = envs.make("ipd-v0")
@@ -310,6 +310,95 @@ def test_tabulated_ppo_equals_the_per_sample_ppo():
     )
     for a, b in zip(jax.tree.leaves(per_sample), jax.tree.leaves(tabulated), strict=True):
         np.testing.assert_allclose(a, b, rtol=2e-4, atol=2e-6)
+
+
+def test_a_scheduled_epoch_count_is_the_ordinary_update_with_that_many_epochs():
+    """An `update_schedule` of epochs (1, 3) within a 6-epoch masked scan: agent 0 ends where
+    the ordinary PPO with ppo_epochs 1 leaves it, agent 1 where ppo_epochs 3 does (the
+    tabulated path here; the per-sample path runs the same `epoch_schedule.run`, and the
+    admo_code test below runs both through `update`)."""
+    cfg = dataclasses.replace(
+        learners.default_config("reciprocator", "ipd-v0"), num_envs=16, ppo_epochs=3
+    )
+    schedule = UpdateSchedule(jnp.array([1, 3], jnp.int32), jnp.ones((2,)), 6, {})
+    tables = exact_voi.game_tables(IPD)
+
+    def update(cfg, opt, policy, value, trajs, returns, schedule):
+        return tabular.ppo_update(
+            reciprocator._modules(IPD, cfg),
+            cfg,
+            tables,
+            policy,
+            value,
+            opt,
+            exact_voi.state_one_hot(trajs.obs, tables).reshape(-1, len(tables.states)),
+            jnp.moveaxis(trajs.actions, 2, 0).reshape(2, -1),
+            jnp.moveaxis(returns, 2, 0).reshape(2, -1),
+            trajs.valid.reshape(-1),
+            jnp.ones((2,)),
+            schedule,
+        )
+
+    state = reciprocator.init(jax.random.PRNGKey(7), IPD, cfg)
+    key = jax.random.PRNGKey(8)
+    trajs = reciprocator.play_batch(IPD, cfg, state.policy, key, NO_ATTACK, 0, {})
+    returns = jax.random.normal(jax.random.PRNGKey(9), trajs.env_rewards.shape)
+    per_agent = epoch_schedule.init(cfg.lr, (state.policy, state.value))
+    scheduled = jax.jit(lambda *a: update(cfg, *a, schedule))(
+        per_agent, state.policy, state.value, trajs, returns
+    )
+    assert scheduled[2][0].count.tolist() == [1, 3]
+    for agent, epochs in ((0, 1), (1, 3)):
+        ordinary_cfg = dataclasses.replace(cfg, ppo_epochs=epochs)
+        ordinary = jax.jit(lambda *a, c=ordinary_cfg: update(c, *a, None))(
+            state.opt, state.policy, state.value, trajs, returns
+        )
+        for got, want in zip(
+            jax.tree.leaves(scheduled[:2]), jax.tree.leaves(ordinary[:2]), strict=True
+        ):
+            np.testing.assert_allclose(got[agent], want[agent], rtol=1e-5, atol=1e-7)
+        assert not np.allclose(
+            scheduled[0]["params"]["Dense_0"]["kernel"][agent],
+            state.policy["params"]["Dense_0"]["kernel"][agent],
+        )
+
+
+@pytest.mark.parametrize("env_id", ["ipd-v0", "escape_room-v0"])
+def test_admo_code_schedules_the_adversarys_ppo_epochs_and_reciprocal_weight(env_id):
+    """The published code's ADMO on the Reciprocator: α of the batch's env-reward scalars
+    sets the adversary's epochs max(1, round(2·α1·K)) and weight scale 2·α2 (logged); the
+    other agent's update is the clean one (same batch, its own return normalisation), and
+    the clean run keeps the ordinary program (one Adam state, a scalar step count)."""
+    from pimbot import attacks
+
+    env = envs.make(env_id)
+    resolved = resolve(RunConfig(env_id, learner="reciprocator", attack="admo_code"))
+    base = learners.default_config("reciprocator", env_id)
+    cfg = dataclasses.replace(
+        base, num_envs=8, voi_steps=3, voi_batch=32, voi_hidden=(8,), policy_hidden=(8,)
+    )
+    attack = attacks.make("admo_code", 2, adversary=1)
+    assert resolved.attack.name == "admo_code"
+
+    def both(key):
+        clean, _ = reciprocator.update(reciprocator.init(key, env, cfg), env, cfg)
+        attacked, metrics = reciprocator.update(
+            reciprocator.init(key, env, cfg, attack), env, cfg, attack
+        )
+        return clean.policy, attacked.policy, clean.opt[0].count, attacked.opt[0].count, metrics
+
+    clean, attacked, clean_count, count, metrics = jax.jit(both)(jax.random.PRNGKey(12))
+    assert clean_count.shape == ()
+    alpha_1, alpha_2 = float(metrics["admo/alpha_1"]), float(metrics["admo/alpha_2"])
+    assert abs(alpha_1 + alpha_2 - 1.0) < 1e-5 and min(alpha_1, alpha_2) > 0.0
+    epochs = max(1, round(2 * alpha_1 * cfg.ppo_epochs))
+    assert float(metrics["admo/ppo_epochs"]) == epochs and count.tolist() == [
+        cfg.ppo_epochs,
+        epochs,
+    ]
+    np.testing.assert_allclose(metrics["admo/reciprocal_weight_scale"], 2 * alpha_2, rtol=1e-6)
+    for got, want in zip(jax.tree.leaves(attacked), jax.tree.leaves(clean), strict=True):
+        np.testing.assert_allclose(got[0], want[0], rtol=1e-5, atol=1e-7)
 
 
 def test_tabulated_play_follows_the_game():

@@ -43,10 +43,24 @@ order of one learning-rate step or of one episode's sampling:
   own η_a (the code's optimizer also moves the other givers' η and, in the extra
   steps, the recipients' current θ, which then persist).
 `lr_incentive`, `lr_cost` must equal the learner's (defaults: LIO's Escape Room column;
-the IPD column has lr_cost 0). Its lever is the incentive channel: it lists `emit`
-(left the identity), so a learner without one (PG, Reciprocator) refuses it by name.
-The Reciprocator version of the code (PPO epochs round(20·α1), reciprocal weight
-10·α2, from env rewards only) needs a per-agent PPO-epoch count in that learner.
+the IPD column has lr_cost 0).
+
+Against the Reciprocator (`reciprocators/admo.py` of the code) the same two scalars
+are computed from env rewards only (no incentives, so no cost term), and before every
+PPO update (`update_schedule`, on the batch that update learns from) α sets the
+adversary's PPO epochs to max(1, round(2·α1·K)) and its reciprocal weight to 2·α2·w,
+where K and w are the learner's own (the code's K 10, w 5: round(20·α1) and 10·α2;
+at α = (½, ½) the adversary's update is the ordinary one). The other agents keep
+their ordinary update; the adversary's policy step keeps its sign 1 and it takes no
+further step (`adversary_step` leaves it where PPO left it). Differences to the code:
+the scalars are per-episode means over the batch (the code: its one episode) with the
+learner's γ (the code: 0.99), and our PPO is full-batch with the learner's Adam.
+
+Which learner it runs on is told by its state: without an incentive channel (the
+Reciprocator's `AgentParams` carry no η) it holds a marker instead of Adam states. It lists
+`policy_sign`, `adversary_step` and `update_schedule`, so a learner without an epoch
+schedule (PG) refuses it by name; LIO has every hook point listed but no epochs, and
+this attack's LIO path acts through the other two.
 """
 
 from __future__ import annotations
@@ -58,7 +72,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from pimbot.contracts.attack import AdversaryView, AgentParams, Attack
+from pimbot.contracts.attack import AdversaryView, AgentParams, Attack, UpdateSchedule, agent_row
 from pimbot.contracts.params import check_int, check_number
 from pimbot.envs.core import InvalidParameter
 from pimbot.rollout import discounted_returns, received
@@ -124,8 +138,8 @@ class ADMOCode(Attack):
 
     name: ClassVar[str] = "admo_code"
     lever: ClassVar[str] = "incentive + policy (extra ordinary steps)"
-    hooks: ClassVar[tuple[str, ...]] = ("emit", "policy_sign", "adversary_step")
-    """`emit` is the identity: listed so that only a learner with an incentive channel runs it."""
+    hooks: ClassVar[tuple[str, ...]] = ("policy_sign", "adversary_step", "update_schedule")
+    """LIO: `policy_sign` and `adversary_step`; Reciprocator: `update_schedule`."""
 
     def validate(self, num_agents: int) -> None:
         super().validate(num_agents)
@@ -146,7 +160,11 @@ class ADMOCode(Attack):
         return optax.adam(self.lr_incentive), optax.adam(self.lr_cost)
 
     def init_state(self, key, num_agents, adversary: AgentParams):
+        """LIO: the Adam states of the incentive steps; without an incentive channel (the
+        Reciprocator) only the marker of the PPO schedule (`schedules_ppo`)."""
         del key, num_agents
+        if not jax.tree.leaves(adversary.incentive):
+            return {PPO_MARKER: jnp.ones((), bool)}
         meta, cost = self.optimizers()
         return {
             "meta_opt": meta.init(adversary.incentive),
@@ -154,13 +172,30 @@ class ADMOCode(Attack):
         }
 
     def policy_sign(self, state, num_agents):
-        """2 for the adversary: its ordinary policy step plus the code's one extra step."""
-        del state
+        """LIO: 2 for the adversary, its ordinary policy step plus the code's one extra
+        step; the Reciprocator: 1 for everyone (its schedule is the PPO epochs)."""
+        if schedules_ppo(state):
+            return jnp.ones((num_agents,))
         return 1.0 + self.is_adversary(num_agents).astype(jnp.float32)
 
     def adversary_step(self, state, key, view):
         del key
+        if view.incentive is None:  # the Reciprocator: PPO took the scheduled step
+            return AgentParams(agent_row(view.policy, self.adversary), {}), state, {}
         return step(self, state, view)
+
+    def update_schedule(self, state, key, view, ordinary_epochs):
+        del state, key
+        return ppo_schedule(self, view, ordinary_epochs)
+
+
+PPO_MARKER = "schedules_ppo"
+"""Key of the Reciprocator's state: its presence (static) says the schedule is PPO's."""
+
+
+def schedules_ppo(state) -> bool:
+    """Whether the state is the Reciprocator's (static: the keys of the state's dict)."""
+    return PPO_MARKER in state
 
 
 def signals(attack: ADMOCode, view: AdversaryView, given: jax.Array) -> jax.Array:
@@ -244,3 +279,28 @@ def step(attack: ADMOCode, state, view: AdversaryView):
     }
     new_state = {"meta_opt": meta_opt, "cost_opt": cost_opt}
     return AgentParams(theta_a, eta_new), new_state, metrics
+
+
+def ppo_schedule(attack: ADMOCode, view: AdversaryView, ordinary_epochs: int) -> UpdateSchedule:
+    """The Reciprocator's schedule: the adversary's PPO epochs and reciprocal-weight scale
+    from α of the scalars on the batch's env rewards; everyone else's ordinary update."""
+    a = attack.adversary
+    n = view.env_rewards.shape[-1]
+    no_incentives = jnp.zeros(view.env_rewards.shape + (n,), jnp.float32)
+    gap, welfare, _ = signals(attack, view, no_incentives)
+    g_inc = jnp.clip(gap, -attack.clip, attack.clip)
+    g_pol = jnp.clip(-CODE_MODES[attack.mode] * welfare, -attack.clip, attack.clip)
+    alpha = code_weights(g_inc, g_pol, jnp.stack([attack.c1, attack.c2]).astype(jnp.float32))
+    most = 2 * ordinary_epochs
+    adversary = attack.is_adversary(n)
+    epochs = jnp.where(adversary, scheduled_steps(alpha[0], most), ordinary_epochs)
+    scale = jnp.where(adversary, 2.0 * alpha[1], 1.0)
+    metrics = {
+        "admo/alpha_1": alpha[0],
+        "admo/alpha_2": alpha[1],
+        "admo/returns_gap": gap,
+        "admo/team_welfare": welfare,
+        "admo/ppo_epochs": epochs[a].astype(jnp.float32),
+        "admo/reciprocal_weight_scale": scale[a],
+    }
+    return UpdateSchedule(epochs.astype(jnp.int32), scale, max(most, ordinary_epochs), metrics)
