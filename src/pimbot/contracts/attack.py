@@ -83,7 +83,8 @@ class AdversaryView:
 
     Arrays have leading batch axes B (LIO: none, one episode; Reciprocator: [E]
     episodes) before time T. The adversary's row of `policy` (and `incentive`) is
-    its current ω: the learner has not moved it (its policy sign is 0).
+    its current ω: the learner has not moved it (its policy sign is 0). For
+    `update_schedule` the view is taken before the update, on the batch it learns from.
     """
 
     policy: Any
