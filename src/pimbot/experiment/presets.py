@@ -288,16 +288,17 @@ def _reciprocator_settings(scale: Scale) -> list[tuple[Setting, str, tuple[str, 
             disrupt if scale.full_matrices else ("clean",),
         ),
         (code_room("rec_er21_code_e128", 128, 150, 5), "reciprocator", disrupt),
+        # COUNTERFACTUAL env (escape_room_transfer-v0): does a pay-back channel make
+        # Reciprocators solve ER(2,1)? NL on it is the control (transfer without reciprocity)
+        (room("rec_er21_transfer", 2, 1, TRANSFER_ENV, TRANSFER), "reciprocator", ("clean",)),
+        (room("nl_er21_transfer", 2, 1, TRANSFER_ENV, TRANSFER), "nl", ("clean",)),
     ]
     if scale.full_matrices:
         settings += [
-            # C7 IPD N = 3, 4 at the original's 2048 games per update
+            # C7 IPD N = 3, 4 at the original's 2048 games per update (the quick suite's
+            # rec_ipd3/4 play 32 games per update)
             (ipd("rec_ipd3_g2048", 3, games=2048), "reciprocator", disrupt),
             (ipd("rec_ipd4_g2048", 4, games=2048), "reciprocator", disrupt),
-            # COUNTERFACTUAL env (escape_room_transfer-v0): does a pay-back channel make
-            # Reciprocators solve ER(2,1)? NL on it is the control (transfer without reciprocity)
-            (room("rec_er21_transfer", 2, 1, TRANSFER_ENV, TRANSFER), "reciprocator", ("clean",)),
-            (room("nl_er21_transfer", 2, 1, TRANSFER_ENV, TRANSFER), "nl", ("clean",)),
         ]
     return settings
 
