@@ -32,13 +32,23 @@ def _learning_columns(row: dict) -> list[str]:
 
 
 def test_seed_gives_the_same_result_alone_or_in_a_batch_of_10(tmp_path):
+    """Determinism holds bitwise for a given seed set and device count (resume, rerun: the
+    SIGKILL test below). Across batch sizes it holds to rounding only: XLA's CPU kernels
+    for a [S, ...] batch depend on S, so float32 sums are ordered differently and differ
+    in the last bits (ER(2,1), 1000 iterations: ≤ 6e-8 absolute in the Adam moments,
+    ≤ 1.8e-6 relative in the incentive columns); success and every count agree exactly.
+    Long runs may drift further (chaotic), so compare seeds across batch sizes
+    statistically, not bitwise."""
     alone = runner.train(RunConfig(**SMALL, seeds=1, first_seed=3), tmp_path / "a", progress=False)
     batch = runner.train(RunConfig(**SMALL, seeds=10, first_seed=0), tmp_path / "b", progress=False)
     rows_alone = _rows_by_seed(alone.run_dir)[3]
     rows_batch = _rows_by_seed(batch.run_dir)[3]
     assert len(rows_alone) == len(rows_batch) == 2
     for a, b in zip(rows_alone, rows_batch, strict=True):
+        assert a.keys() == b.keys()
         for column in _learning_columns(a):
+            if "success" in column or column in ("iteration", "seed"):
+                assert a[column] == b[column], column
             np.testing.assert_allclose(
                 float(a[column]), float(b[column]), rtol=1e-5, atol=1e-6, err_msg=column
             )
