@@ -160,6 +160,8 @@ def run_case(config: str, num_seeds: int, args: argparse.Namespace) -> dict[str,
     else:  # time a cold compile, whatever JAX_COMPILATION_CACHE_DIR says
         jax.config.update("jax_enable_compilation_cache", False)
         cache_dir = None
+    if not args.rolled_threefry:
+        jax_setup.unroll_cpu_threefry()  # as `pimbot train` does (enable_compilation_cache)
 
     from pimbot.experiment import runner
     from pimbot.experiment.config import resolve
@@ -254,6 +256,8 @@ def run_isolated(config: str, num_seeds: int, args: argparse.Namespace) -> dict[
         cmd += ["--attack", args.attack]
     if args.compilation_cache:
         cmd.append("--compilation-cache")
+    if args.rolled_threefry:
+        cmd.append("--rolled-threefry")
     for flag, value in (
         ("--iterations", args.iterations),
         ("--eval-period", args.eval_period),
@@ -523,6 +527,10 @@ def lio_report(args: argparse.Namespace) -> int:
     import jax
 
     jax.config.update("jax_enable_compilation_cache", False)
+    if not args.rolled_threefry:
+        from pimbot import jax_setup
+
+        jax_setup.unroll_cpu_threefry()  # as `pimbot train` does
     seeds, iterations = args.report_seeds, args.report_iterations
     peak, peak_desc = core_peak()
     wanted = [(c, None) for c in REPORT_CONFIGS] + [(c, "admo") for c in RATIO_CONFIGS]
@@ -636,6 +644,12 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="use pimbot's persistent compilation cache as `pimbot train` does "
         "(default: off, cold compiles)",
+    )
+    parser.add_argument(
+        "--rolled-threefry",
+        action="store_true",
+        help="keep JAX's CPU lowering of the PRNG (a five-trip loop per random call) instead "
+        "of the unrolled one `pimbot train` uses (jax_setup.unroll_cpu_threefry; same results)",
     )
     parser.add_argument(
         "--in-process",

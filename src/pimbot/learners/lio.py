@@ -427,28 +427,34 @@ def giver_turns(env, cfg, givers, frozen, policy, incentive, opts, traj, epsilon
     """
     meta, cost = optax.adam(cfg.lr_incentive), optax.adam(cfg.lr_cost)
 
-    def turn(carry, giver):
-        incentive, policy, (meta_opt, cost_opt) = carry
+    def turn(carry, inputs):
+        incentive, policy = carry
+        giver, own_meta, own_cost = inputs  # this giver's optimizer states: only its turn uses them
         grads = jax.grad(giver_objective, argnums=(0, 4))(
             incentive, giver, env, cfg, policy, traj, epsilon, new_traj
         )
         ascent = jax.tree.map(jnp.negative, grads)  # Adam minimises
-        updates, own_meta = meta.update(ascent, agent_row(meta_opt, giver))
-        meta_opt = with_agent_row(meta_opt, giver, own_meta)
+        updates, own_meta = meta.update(ascent, own_meta)
         moved, policy_moved = optax.apply_updates((incentive, policy), updates)
         if cfg.lr_cost > 0:
             cost_grad = jax.grad(giver_cost)(agent_row(incentive, giver), giver, env, cfg, traj)
-            cost_updates, own_cost = cost.update(cost_grad, agent_row(cost_opt, giver))
-            cost_opt = with_agent_row(cost_opt, giver, own_cost)
+            cost_updates, own_cost = cost.update(cost_grad, own_cost)
             own = optax.apply_updates(agent_row(moved, giver), cost_updates)
             moved = with_agent_row(moved, giver, own)
         if frozen is not None:
             moved = with_agent_row(moved, frozen, agent_row(incentive, frozen))
-        return (moved, policy_moved, (meta_opt, cost_opt)), None
+        return (moved, policy_moved), (own_meta, own_cost)
 
-    carry = (incentive, policy, opts)
-    (incentive, _, opts), _ = jax.lax.scan(turn, carry, jnp.asarray(givers, jnp.int32))
-    return incentive, opts
+    # The per-giver optimizer states are the scan's inputs and outputs, not its carry: a
+    # turn reads and writes only its own giver's row, and carrying all N rows (Adam over
+    # every η and θ, per giver) would slice, update and copy them on every turn.
+    order = jnp.asarray(givers, jnp.int32)
+    everyone = list(givers) == list(range(jax.tree.leaves(incentive)[0].shape[0]))
+    rows = opts if everyone else jax.tree.map(lambda x: x[order], opts)
+    (incentive, _), new_rows = jax.lax.scan(turn, (incentive, policy), (order, *rows))
+    if everyone:
+        return incentive, new_rows
+    return incentive, jax.tree.map(lambda x, new: x.at[order].set(new), opts, new_rows)
 
 
 def incentive_cost(incentive, env, cfg, traj: Trajectory) -> jax.Array:
