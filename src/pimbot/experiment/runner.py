@@ -261,12 +261,20 @@ def check_run_dir(run_dir: Path, resolved: ResolvedRun) -> None:
             f"out: {run_dir} holds a different run (differs in: {', '.join(diff)}); "
             "choose another directory or repeat the original command to resume it"
         )
-    edited = [key for key in ("run_config", "env") if config.get(key) != described[key]]
+    edited = [key for key in ("run_config", "env") if _edited(config.get(key), described[key])]
     if edited:
         raise store.DamagedRunDir(
             f"{config_path}: damaged ({' and '.join(edited)} disagree with its identity: "
             f"the file was edited); {store.RESTART_HINT}"
         )
+
+
+def _edited(saved: Any, wanted: dict) -> bool:
+    """Whether a saved config.json section disagrees with the run: a field both have
+    differs (a field only one has is another pimbot version's, not an edit)."""
+    if not isinstance(saved, dict):
+        return True
+    return any(saved[k] != wanted[k] for k in saved.keys() & wanted.keys())
 
 
 def periods_per_call(per_chunk: int, eval_period: int, progress: bool) -> int:
