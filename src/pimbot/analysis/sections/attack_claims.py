@@ -120,8 +120,8 @@ def claims(table: RunTable, runs: list[RunRecord]) -> list[Claim]:
     return [c1a(data), c1b(data), c2(data), c3(data), *c4(data), c5(data)]
 
 
-def _missing(env: str) -> Verdict:
-    return verdicts.not_run(f"{env}: no run")
+def _missing() -> Verdict:
+    return verdicts.not_run("no run")
 
 
 # --- C1 ---------------------------------------------------------------------------------
@@ -132,7 +132,7 @@ def c1a(data: Runs) -> Claim:
     for env in C1_ENVS:
         run = data.get(env, "self_centered")
         if run is None:
-            parts[env] = _missing(env)
+            parts[env] = _missing()
             continue
         margin = estimate(run.per_seed("eval/adversary_margin_env"), 2, signed=True)
         judged = judging.above(margin, 0.0, "margin")
@@ -167,7 +167,7 @@ def c1b(data: Runs) -> Claim:
     for env, (paper_clean, paper_selfish) in PAPER_SPEED.items():
         clean, selfish = data.get(env, CLEAN), data.get(env, "self_centered")
         if clean is None or selfish is None:
-            parts[env] = _missing(env)
+            parts[env] = _missing()
             continue
         a, b = data.of(clean), data.of(selfish)
         column = "eval/return_ratio" if a.has("eval/return_ratio") else "eval/success"
@@ -262,7 +262,7 @@ def c2(data: Runs) -> Claim:
     for env in ROOMS:
         run = data.get(env, "fake_incentive")
         if run is None:
-            parts[env] = _missing(env)
+            parts[env] = _missing()
             continue
         curves = data.of(run)
         final = estimate(run.per_seed("eval/success"))
@@ -308,7 +308,7 @@ def c3(data: Runs) -> Claim:
     for env in ROOMS:
         run = data.get(env, "bypass")
         if run is None:
-            parts[env] = _missing(env)
+            parts[env] = _missing()
             continue
         params = run.identity["env_params"]
         reachable = data.success_reachable(run)
@@ -356,7 +356,7 @@ def c4(data: Runs) -> list[Claim]:
     for env in ROOMS:
         run = data.get(env, "reverse")
         if run is None:
-            at_budget[env] = _missing(env)
+            at_budget[env] = _missing()
             continue
         curves = data.of(run)
         want_low = env != "ER(4,2)"
