@@ -160,6 +160,29 @@ def test_sigkill_mid_sweep_then_rerun_completes_with_identical_results(reference
         assert learning_rows(out / job.name) == learning_rows(reference / job.name), job.name
 
 
+def test_interrupting_the_driver_alone_ends_its_running_jobs_and_workers(tmp_path):
+    """SIGINT to the driver only (as a job manager sends it; a terminal's Ctrl-C reaches
+    the whole process group): the sweep must stop its running jobs, not wait for them to
+    finish, and leave no worker behind (one left training holds its job's lock)."""
+    out = tmp_path / "interrupted"
+    command = [sys.executable, "-c", RUN_CODE, str(out)]
+    proc = subprocess.Popen(
+        command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
+    )
+    deadline = time.time() + 180
+    while time.time() < deadline and proc.poll() is None:
+        if list(out.glob("attacks/*/checkpoint/meta.json")):
+            break
+        time.sleep(0.05)
+    workers = psutil.Process(proc.pid).children(recursive=True)
+    os.kill(proc.pid, signal.SIGINT)
+    proc.wait(timeout=60)
+    unfinished = [j for j in TRAIN_JOBS if not (out / j.name / "summary.json").exists()]
+    assert unfinished, "the interrupted sweep let its running jobs finish"
+    _, alive = psutil.wait_procs(workers, timeout=10)
+    assert not alive, "workers outlived the interrupted sweep"
+
+
 def test_ray_backend_gives_the_same_metrics_as_local(reference, tmp_path):
     ray = pytest.importorskip("ray", reason="the ray extra is part of the test install")
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)

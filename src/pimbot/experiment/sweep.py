@@ -296,8 +296,23 @@ class LocalBackend:
             self.options.plugins,
         )
 
-    def shutdown(self) -> None:
+    def shutdown(self, abandon: bool = False) -> None:
+        """Ends the pool. `abandon` (the sweep stops early: an interrupt, an error) also
+        ends the jobs still training, which would otherwise go on after the sweep has given
+        up, holding their directories' locks, and keep the interpreter from exiting until
+        they are done; a rerun resumes them from their last checkpoints."""
+        # The executor's own list of its workers (no public accessor before Python 3.14's
+        # terminate_workers); shutdown() drops it, so it is read first.
+        workers = list((getattr(self.pool, "_processes", None) or {}).values())
         self.pool.shutdown(wait=False, cancel_futures=True)
+        if not abandon:
+            return
+        for worker in workers:
+            worker.terminate()
+        for worker in workers:
+            worker.join(timeout=10)
+            if worker.is_alive():
+                worker.kill()
 
 
 class RayBackend:
@@ -321,8 +336,8 @@ class RayBackend:
         job_options, plugins = self.options.job_options, self.options.plugins
         return self.remote.remote(task, path, self.devices, job_options, plugins).future()
 
-    def shutdown(self) -> None:
-        pass
+    def shutdown(self, abandon: bool = False) -> None:
+        """Nothing to end: Ray ends a driver's tasks when the driver disconnects."""
 
 
 def cpu_count() -> int:
@@ -426,6 +441,7 @@ def run(
     t0 = time.perf_counter()
     failed: list[str] = []
     backend = None
+    stopped_early = True  # until the loop below has seen every task end
     try:
         if todo:
             backend = (
@@ -480,10 +496,11 @@ def run(
                 display.refresh()
             index["programs"] = programs
             write_index(suite_dir, index)
+        stopped_early = False
     finally:
         display.close(programs if todo else None)
         if backend is not None:
-            backend.shutdown()
+            backend.shutdown(abandon=stopped_early)
     return SweepResult(
         index, failed, time.perf_counter() - t0, [job.name for job in todo], programs
     )
