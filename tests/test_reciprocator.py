@@ -8,12 +8,19 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from pimbot import envs, learners
+from pimbot import envs, learners, nets
 from pimbot.attacks import ADMO, Bypass, Reverse
 from pimbot.contracts.attack import NO_ATTACK, UpdateSchedule
 from pimbot.envs.core import InvalidParameter
 from pimbot.experiment.config import RunConfig, resolve
-from pimbot.learners import epoch_schedule, exact_voi, influence, reciprocator, tabular
+from pimbot.learners import (
+    epoch_schedule,
+    exact_voi,
+    influence,
+    reciprocator,
+    reciprocator_nets,
+    tabular,
+)
 from pimbot.rollout import rollout
 
 IPD = envs.make("ipd-v0")
@@ -248,6 +255,72 @@ def test_bad_options_are_refused():
     room = envs.make("escape_room-v0")
     with pytest.raises(InvalidParameter, match="voi: 'exact' needs a matrix game"):
         reciprocator.init(jax.random.PRNGKey(0), room, dataclasses.replace(SMALL, voi="exact"))
+    general = dataclasses.replace(
+        SMALL, net_input="observation", policy_head="softmax", net_init="glorot"
+    )
+    with pytest.raises(InvalidParameter, match="needs a matrix game"):
+        reciprocator.init(
+            jax.random.PRNGKey(0), room, dataclasses.replace(general, net_input="previous_actions")
+        )
+    with pytest.raises(InvalidParameter, match="policy_head: 'sigmoid' needs two actions"):
+        reciprocator.init(
+            jax.random.PRNGKey(0), room, dataclasses.replace(general, policy_head="sigmoid")
+        )
+    for name in ("net_input", "policy_head", "net_init"):
+        with pytest.raises(InvalidParameter, match=f"{name}: must be one of"):
+            reciprocator.init(jax.random.PRNGKey(0), IPD, dataclasses.replace(SMALL, **{name: "x"}))
+
+
+# --- the networks (reciprocator_nets) ----------------------------------------------------
+
+
+def test_general_network_choices_are_the_plain_mlp_drawn_as_before():
+    """observation / softmax / glorot: `nets.MLP` itself, with `nets.init_stacked`'s draw."""
+    cfg = dataclasses.replace(SMALL, net_input="observation", policy_head="softmax")
+    policy_module, value_module = reciprocator._modules(IPD, cfg)
+    assert type(policy_module) is nets.MLP and type(value_module) is nets.MLP
+    key = jax.random.PRNGKey(4)
+    got = reciprocator_nets.init_params(policy_module, key, 2, IPD.obs_dim, "glorot")
+    want = nets.init_stacked(policy_module, key, 2, IPD.obs_dim)
+    for g, w in zip(jax.tree.leaves(got), jax.tree.leaves(want), strict=True):
+        np.testing.assert_array_equal(g, w)
+
+
+def test_previous_actions_input_and_sigmoid_head_on_the_ipd():
+    """The original IPD agent's state: (a0, a1) of the previous step, (−1, 0) at the first;
+    the network on the env's observation equals the MLP on that state; the sigmoid head's
+    logits are [0, z], so p(defect) = σ(z)."""
+    tables = exact_voi.game_tables(IPD)
+    rows = reciprocator_nets.previous_actions_rows(tables)
+    # dense states in code order: CC CD DC DD first (one-hot index 2·a0 + a1, 4 first)
+    np.testing.assert_array_equal(rows, [[0, 0], [0, 1], [1, 0], [1, 1], [-1, 0]])
+    obs, state = IPD.reset(jax.random.PRNGKey(0))
+    after_dc, *_ = IPD.step(jax.random.PRNGKey(0), state, jnp.array([1, 0]))
+    module, _ = reciprocator_nets.modules(IPD, (4,), "previous_actions", "sigmoid")
+    params = module.init(jax.random.PRNGKey(1), obs[0])
+    inner = {"params": params["params"]["MLP_0"]}
+    for observation, row in ((obs[0], [-1.0, 0.0]), (after_dc[0], [1.0, 0.0])):
+        logits = module.apply(params, observation)
+        z = nets.MLP((4,), 1).apply(inner, jnp.array(row))
+        np.testing.assert_allclose(logits, jnp.concatenate([jnp.zeros(1), z]), rtol=1e-6)
+        np.testing.assert_allclose(jax.nn.softmax(logits)[1], jax.nn.sigmoid(z[0]), rtol=1e-6)
+
+
+def test_fan_in_uniform_draws_kernels_and_biases_within_one_over_root_fan_in():
+    module = nets.MLP((64, 2), 1)
+    key = jax.random.PRNGKey(5)
+    draw = jax.jit(lambda k: reciprocator_nets.init_params(module, k, 3, 16, "fan_in_uniform"))
+    params = draw(key)["params"]
+    for layer, fan_in in (("Dense_0", 16), ("Dense_1", 64), ("Dense_2", 2)):
+        for name in ("kernel", "bias"):
+            x = np.asarray(params[layer][name])
+            assert np.all(np.abs(x) <= 1 / np.sqrt(fan_in)), (layer, name)
+        if layer != "Dense_2":  # enough draws: the spread of a uniform, not a constant
+            kernel = np.asarray(params[layer]["kernel"])
+            np.testing.assert_allclose(kernel.std(), 1 / np.sqrt(3 * fan_in), rtol=0.1)
+            assert np.abs(np.asarray(params[layer]["bias"])).max() > 0.5 / np.sqrt(fan_in)
+    agents = np.asarray(params["Dense_0"]["kernel"])
+    assert not np.allclose(agents[0], agents[1])  # every agent its own draw
 
 
 # --- the matrix-game path (exact VoI, tabulated play and PPO) --------------------------

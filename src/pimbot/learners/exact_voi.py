@@ -109,10 +109,15 @@ def game_tables(env: MatrixGame) -> GameTables:
     )
 
 
-def state_codes(obs: jax.Array) -> jax.Array:
-    """int32 [...] state code Σ_d obs_d 2^d of agent 0's binary observation [..., N, obs_dim]."""
-    bits = jnp.round(obs[..., 0, :]).astype(jnp.int32)
+def row_codes(obs: jax.Array) -> jax.Array:
+    """int32 [...] state code Σ_d obs_d 2^d of one agent's binary observation [..., obs_dim]."""
+    bits = jnp.round(obs).astype(jnp.int32)
     return jnp.sum(bits << jnp.arange(obs.shape[-1], dtype=jnp.int32), axis=-1)
+
+
+def state_codes(obs: jax.Array) -> jax.Array:
+    """int32 [...] state code of agent 0's binary observation [..., N, obs_dim]."""
+    return row_codes(obs[..., 0, :])
 
 
 def state_one_hot(obs: jax.Array, tables: GameTables) -> jax.Array:

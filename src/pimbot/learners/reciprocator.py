@@ -52,7 +52,7 @@ from pimbot.contracts.attack import (
 from pimbot.contracts.defense import NO_DEFENSE, Defenses
 from pimbot.contracts.learner import Actor
 from pimbot.envs.core import Env, InvalidParameter
-from pimbot.learners import epoch_schedule, exact_voi, influence, tabular
+from pimbot.learners import epoch_schedule, exact_voi, influence, reciprocator_nets, tabular
 from pimbot.learners.pg import act_fn, evaluate_actor
 from pimbot.rollout import Trajectory, discounted_returns, episode_metrics, rollout
 
@@ -101,6 +101,16 @@ class ReciprocatorConfig:
     """The balance B_{t−1} that scales the reciprocal reward: "accumulated" (γ B + VoI(j→self)
     − VoI(self→j), the general agent) or "one_step" (VoI(j→self, t−1) only: no accumulation,
     no debit, the original's IPD agent)."""
+    net_input: str = "observation"
+    """What the policy and value networks see: "observation" (the env's) or
+    "previous_actions" (matrix games: every agent's previous action as a number, (−1, 0, …)
+    at the first step; the original's IPD state). `reciprocator_nets`."""
+    policy_head: str = "softmax"
+    """"softmax" (a logit per action) or "sigmoid" (two actions, one logit: the original's
+    Bernoulli actor)."""
+    net_init: str = "glorot"
+    """Network init: "glorot" (Glorot-uniform kernels, zero biases) or "fan_in_uniform"
+    (kernels and biases uniform in ±1/√fan_in, PyTorch's default, the original's)."""
 
     RANGES: ClassVar[dict] = {
         "num_envs": (1, None),
@@ -116,16 +126,28 @@ class ReciprocatorConfig:
 
 VOI_KINDS = ("learned", "exact")
 GRUDGES = influence.GRUDGES
+CHOICES = {
+    "voi": VOI_KINDS,
+    "grudge": GRUDGES,
+    "net_input": reciprocator_nets.NET_INPUTS,
+    "policy_head": reciprocator_nets.POLICY_HEADS,
+    "net_init": reciprocator_nets.NET_INITS,
+}
 
 
 def check_config(env: Env, cfg: ReciprocatorConfig) -> None:
-    """Refuses unknown `voi` / `grudge` values and exact VoI outside matrix games."""
-    if cfg.voi not in VOI_KINDS:
-        raise InvalidParameter(f"voi: must be one of {', '.join(VOI_KINDS)}, got {cfg.voi!r}")
-    if cfg.grudge not in GRUDGES:
-        raise InvalidParameter(f"grudge: must be one of {', '.join(GRUDGES)}, got {cfg.grudge!r}")
-    if cfg.voi == "exact":
+    """Refuses unknown choices, exact VoI or previous-action inputs outside matrix games,
+    and the sigmoid head unless there are two actions."""
+    for name, allowed in CHOICES.items():
+        value = getattr(cfg, name)
+        if value not in allowed:
+            raise InvalidParameter(f"{name}: must be one of {', '.join(allowed)}, got {value!r}")
+    if cfg.voi == "exact" or cfg.net_input == "previous_actions":
         exact_voi.check_env(env)
+    if cfg.policy_head == "sigmoid" and env.num_actions != 2:
+        raise InvalidParameter(
+            f"policy_head: 'sigmoid' needs two actions, the env has {env.num_actions}"
+        )
 
 
 @struct.dataclass
@@ -152,11 +174,8 @@ class ReciprocatorState:
     env_steps: jax.Array  # int32 [], environment steps taken in training
 
 
-def _modules(env: Env, cfg: ReciprocatorConfig) -> tuple[nets.MLP, nets.MLP]:
-    return (
-        nets.policy_module(cfg.policy_hidden, env.num_actions),
-        nets.MLP(tuple(cfg.policy_hidden), 1),
-    )
+def _modules(env: Env, cfg: ReciprocatorConfig):
+    return reciprocator_nets.modules(env, cfg.policy_hidden, cfg.net_input, cfg.policy_head)
 
 
 def _masks(env: Env) -> jax.Array:
@@ -174,8 +193,8 @@ def init(
     policy_module, value_module = _modules(env, cfg)
     policy_key, value_key, model_key, key = jax.random.split(key, 4)
     n = env.num_agents
-    policy = nets.init_stacked(policy_module, policy_key, n, env.obs_dim)
-    value = nets.init_stacked(value_module, value_key, n, env.obs_dim)
+    policy = reciprocator_nets.init_params(policy_module, policy_key, n, env.obs_dim, cfg.net_init)
+    value = reciprocator_nets.init_params(value_module, value_key, n, env.obs_dim, cfg.net_init)
     if cfg.voi == "exact":
         models, replay = exact_voi.init_frequencies(env, cfg.voi_history), None
     else:
