@@ -120,6 +120,17 @@ def test_balance_recursion_matches_a_loop_reference_for_three_agents():
     np.testing.assert_allclose(rewards, expected, rtol=1e-5, atol=1e-6)
 
 
+def test_voi_after_earlier_agents_counts_their_added_reciprocal_reward():
+    """The original IPD code's in-place update: agent 1's VoI on agent 0 reads agent 0's
+    reward after agent 0 added w·reciprocal_0; agent 0 (updated first) sees env rewards."""
+    a, b, c, d, w = 0.5, -1.5, 2.0, 0.25, 5.0
+    voi = jnp.array([[[0.0, a], [b, 0.0]], [[0.0, c], [d, 0.0]]])  # [T, j, i] = VoI(j → i)
+    balances, env_based = influence.balance_and_reciprocal_reward(voi, 0.96, "one_step")
+    aliased = influence.reciprocal_rewards_in_id_order(balances, voi, lambda rec: w * rec)
+    np.testing.assert_allclose(env_based, [[0.0, 0.0], [b * c, a * d]], rtol=1e-6)
+    np.testing.assert_allclose(aliased, [[0.0, 0.0], [b * c, a * (d + w * b * c)]], rtol=1e-6)
+
+
 def test_next_returns_start_after_the_step():
     rewards = jnp.array([[1.0], [2.0], [4.0]])
     np.testing.assert_allclose(influence.next_returns(rewards, 0.5)[:, 0], [2.0 + 2.0, 4.0, 0.0])
@@ -266,7 +277,7 @@ def test_bad_options_are_refused():
         reciprocator.init(
             jax.random.PRNGKey(0), room, dataclasses.replace(general, policy_head="sigmoid")
         )
-    for name in ("net_input", "policy_head", "net_init"):
+    for name in ("voi_rewards", "net_input", "policy_head", "net_init"):
         with pytest.raises(InvalidParameter, match=f"{name}: must be one of"):
             reciprocator.init(jax.random.PRNGKey(0), IPD, dataclasses.replace(SMALL, **{name: "x"}))
 

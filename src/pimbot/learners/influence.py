@@ -174,3 +174,34 @@ def balance_and_reciprocal_reward(
     start = jnp.zeros((num_agents, num_agents), voi.dtype)
     _, (balances, rewards) = jax.lax.scan(body, start, voi)
     return balances, rewards
+
+
+VOI_REWARDS = ("env", "after_earlier_agents")
+"""What an agent's VoI on the others is measured in: their env rewards, or (the original IPD
+code) their rewards after the agents before it in id order added their reciprocal rewards."""
+
+
+def reciprocal_rewards_in_id_order(balances: jax.Array, voi: jax.Array, added_fn) -> jax.Array:
+    """Reciprocal rewards where agent i's VoI(i→j) on an agent j < i counts what j added to
+    its own learning reward (the original IPD code: each agent adds w·reciprocal in place to
+    the joint reward tensor, agents update in id order, and a later agent's VoI reads it).
+
+    Args:
+        balances: [..., T, N self, N other] B_t; voi: [..., T, N j, N i];
+        added_fn: reciprocal rewards [..., T, N] -> what each agent adds to its own
+            learning reward [..., T, N] (w·reciprocal for a Reciprocator; per element).
+    Returns:
+        [..., T, N] reciprocal_t[i] = mean_{j≠i} B_{t−1}[i, j]·(VoI(i→j, t) + added_j(t)·[j < i]).
+    """
+    num_agents = voi.shape[-1]
+    start = jnp.zeros_like(balances[..., :1, :, :])
+    previous = jnp.concatenate([start, balances[..., :-1, :, :]], axis=-3)  # B_{t−1}
+    reciprocal = jnp.zeros(voi.shape[:-1], voi.dtype)
+    added = jnp.zeros_like(reciprocal)
+    for i in range(num_agents):
+        earlier = jnp.arange(num_agents) < i
+        influence = voi[..., i, :] + jnp.where(earlier, added, 0.0)
+        reward = jnp.sum(previous[..., i, :] * influence, axis=-1) / (num_agents - 1)
+        reciprocal = reciprocal.at[..., i].set(reward)
+        added = added_fn(reciprocal)
+    return reciprocal

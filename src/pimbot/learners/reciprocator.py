@@ -101,6 +101,11 @@ class ReciprocatorConfig:
     """The balance B_{t−1} that scales the reciprocal reward: "accumulated" (γ B + VoI(j→self)
     − VoI(self→j), the general agent) or "one_step" (VoI(j→self, t−1) only: no accumulation,
     no debit, the original's IPD agent)."""
+    voi_rewards: str = "env"
+    """What an agent's VoI on the others, in its reciprocal reward, is measured in: "env"
+    (their env rewards) or "after_earlier_agents" (an agent j < i counts with the weighted
+    reciprocal reward it added to its own: the original IPD code's in-place update of the
+    shared reward tensor, agents updated in id order; `influence`)."""
     net_input: str = "observation"
     """What the policy and value networks see: "observation" (the env's) or
     "previous_actions" (matrix games: every agent's previous action as a number, (−1, 0, …)
@@ -129,6 +134,7 @@ GRUDGES = influence.GRUDGES
 CHOICES = {
     "voi": VOI_KINDS,
     "grudge": GRUDGES,
+    "voi_rewards": influence.VOI_REWARDS,
     "net_input": reciprocator_nets.NET_INPUTS,
     "policy_head": reciprocator_nets.POLICY_HEADS,
     "net_init": reciprocator_nets.NET_INITS,
@@ -467,7 +473,7 @@ def update(
     # 2.–3. store it, refit the VoI estimate when due, VoI of every ordered pair on every step
     models, replay, voi, fit_metrics = influence_step(env, cfg, state, fit_key, trajs)
     # the balance and the reciprocal reward
-    _, reciprocal = jax.vmap(
+    balances, reciprocal = jax.vmap(
         lambda v: influence.balance_and_reciprocal_reward(v, cfg.gamma, cfg.grudge)
     )(voi)
     # 4. PPO on env + w · reciprocal reward (attack hooks: update_schedule, learning_rewards,
@@ -480,6 +486,15 @@ def update(
             state.attack_state, attack_key(fit_key), view, cfg.ppo_epochs
         )
         weight = cfg.reciprocal_weight * schedule.reward_weight_scale  # [N]
+    if cfg.voi_rewards == "after_earlier_agents":
+        reciprocal = influence.reciprocal_rewards_in_id_order(
+            balances,
+            voi,
+            lambda rec: (
+                attack.learning_rewards(state.attack_state, trajs.env_rewards, weight * rec)
+                - trajs.env_rewards
+            ),
+        )
     rewards = attack.learning_rewards(state.attack_state, trajs.env_rewards, weight * reciprocal)
     returns = normalized_returns(rewards, trajs.valid, cfg.gamma)
     sign = attack.policy_sign(state.attack_state, env.num_agents)
