@@ -3,10 +3,18 @@
 Two XLA host devices, so seed sharding is exercised as in `pimbot train`, and
 one persistent compilation cache for the whole session (shared with the CLI
 subprocesses some tests start), so identical programs compile once.
+
+With pytest-xdist (the `addopts` of pyproject.toml) this module runs first in the
+controller, whose environment every worker inherits: the workers see the same
+XLA_FLAGS (two host devices each) and the same cache directory, so a program one
+worker compiled is a cache hit in the other (JAX writes each entry once and a torn
+read is a warning and a recompile, as between the workers of `pimbot reproduce`).
 """
 
 import os
 import tempfile
+
+import pytest
 
 flags = os.environ.get("XLA_FLAGS", "")
 if "xla_force_host_platform_device_count" not in flags:
@@ -16,3 +24,39 @@ os.environ.setdefault("PIMBOT_CACHE_DIR", tempfile.mkdtemp(prefix="pimbot-jax-ca
 from pimbot import jax_setup  # noqa: E402
 
 jax_setup.enable_compilation_cache()
+
+MAX_WORKERS = 4
+"""The cap of `--numprocesses=auto`. Every worker is a JAX process that compiles (about
+1-2 GB each, more while a test's sweep or CLI subprocesses run), and the suite is a few
+compile-bound files: past four workers a many-core laptop gains little and risks its
+memory."""
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_auto_num_workers(config: pytest.Config) -> int | None:
+    """`--numprocesses=auto`: one worker per CPU this process may run on (2 in CI), at most
+    `MAX_WORKERS` and at most one per test file named on the command line (a directory
+    counts as many); 0 (the tests run in this process, no workers) where that leaves one,
+    so `pytest tests/test_x.py -k name` runs as it would without xdist. xdist's own count
+    is physical cores of the whole machine: 1 on a 2-vCPU runner, too many in a container
+    pinned to a few CPUs of a big host. PYTEST_XDIST_AUTO_NUM_WORKERS still overrides it
+    (None: xdist's hook reads it)."""
+    if os.environ.get("PYTEST_XDIST_AUTO_NUM_WORKERS"):
+        return None
+    affinity = getattr(os, "sched_getaffinity", None)  # Linux; elsewhere every CPU
+    cpus = len(affinity(0)) if affinity else os.cpu_count() or 1
+    paths = {arg.split("::")[0] for arg in config.args}
+    files = len(paths) if paths and all(p.endswith(".py") for p in paths) else MAX_WORKERS
+    workers = min(cpus, MAX_WORKERS, files)
+    return workers if workers > 1 else 0
+
+
+def pytest_addoption(parser: pytest.Parser, pluginmanager: pytest.PytestPluginManager) -> None:
+    """Without xdist (`-p no:xdist`, or an install from before it joined the test extra)
+    its options in `addopts` are accepted and ignored: the tests run in this process."""
+    if pluginmanager.has_plugin("xdist"):
+        return
+    group = parser.getgroup("xdist", "pytest-xdist is not active: these options do nothing")
+    group.addoption("--numprocesses", action="store", help="ignored without pytest-xdist")
+    group.addoption("--dist", action="store", help="ignored without pytest-xdist")
+    group.addoption("--no-loadscope-reorder", action="store_true", help="ignored too")
