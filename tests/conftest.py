@@ -26,9 +26,10 @@ from pimbot import jax_setup  # noqa: E402
 jax_setup.enable_compilation_cache()
 
 MAX_WORKERS = 4
-"""The cap of `--numprocesses=auto`. Every worker is a JAX process that compiles (about
-1-2 GB each, more while a test's sweep or CLI subprocesses run), and the suite is a few
-compile-bound files: past four workers a many-core laptop gains little and risks its
+"""The cap of `--numprocesses=auto`. Every worker is a JAX process that compiles and keeps
+its programs (2-3 GB resident each by the end of the suite, measured on 2 workers, plus
+the sweep and CLI subprocesses some tests start), and the suite is a few compile-bound
+files handed out whole: past four workers a many-core laptop gains little and risks its
 memory."""
 
 
