@@ -318,20 +318,20 @@ def test_previous_actions_input_and_sigmoid_head_on_the_ipd():
 
 
 def test_fan_in_uniform_draws_kernels_and_biases_within_one_over_root_fan_in():
-    module = nets.MLP((64, 2), 1)
-    key = jax.random.PRNGKey(5)
-    draw = jax.jit(lambda k: reciprocator_nets.init_params(module, k, 3, 16, "fan_in_uniform"))
-    params = draw(key)["params"]
-    for layer, fan_in in (("Dense_0", 16), ("Dense_1", 64), ("Dense_2", 2)):
-        for name in ("kernel", "bias"):
-            x = np.asarray(params[layer][name])
-            assert np.all(np.abs(x) <= 1 / np.sqrt(fan_in)), (layer, name)
-        if layer != "Dense_2":  # enough draws: the spread of a uniform, not a constant
-            kernel = np.asarray(params[layer]["kernel"])
-            np.testing.assert_allclose(kernel.std(), 1 / np.sqrt(3 * fan_in), rtol=0.1)
-            assert np.abs(np.asarray(params[layer]["bias"])).max() > 0.5 / np.sqrt(fan_in)
-    agents = np.asarray(params["Dense_0"]["kernel"])
-    assert not np.allclose(agents[0], agents[1])  # every agent its own draw
+    shapes = {"Dense_0": (16, 64), "Dense_1": (64, 2)}  # stacked for 3 agents
+    zeros = {
+        name: {"kernel": jnp.zeros((3, i, o)), "bias": jnp.zeros((3, o))}
+        for name, (i, o) in shapes.items()
+    }
+    params = reciprocator_nets.fan_in_uniform(jax.random.PRNGKey(5), {"params": zeros})["params"]
+    for name, (fan_in, _) in shapes.items():
+        bound = 1 / np.sqrt(fan_in)
+        for leaf in ("kernel", "bias"):
+            x = np.asarray(params[name][leaf])
+            assert np.all(np.abs(x) <= bound) and np.abs(x).max() > 0.5 * bound, (name, leaf)
+    kernel = np.asarray(params["Dense_0"]["kernel"])  # enough draws: a uniform's spread
+    np.testing.assert_allclose(kernel.std(), 1 / np.sqrt(3 * 16), rtol=0.1)
+    assert not np.allclose(kernel[0], kernel[1])  # every agent its own draw
 
 
 # --- the matrix-game path (exact VoI, tabulated play and PPO) --------------------------
