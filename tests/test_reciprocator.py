@@ -129,6 +129,19 @@ def test_voi_after_earlier_agents_counts_their_added_reciprocal_reward():
     aliased = influence.reciprocal_rewards_in_id_order(balances, voi, lambda rec: w * rec)
     np.testing.assert_allclose(env_based, [[0.0, 0.0], [b * c, a * d]], rtol=1e-6)
     np.testing.assert_allclose(aliased, [[0.0, 0.0], [b * c, a * (d + w * b * c)]], rtol=1e-6)
+    # three agents, the accumulated balance, per-agent weights: against a loop
+    voi = jax.random.normal(jax.random.PRNGKey(1), (4, 3, 3)) * (1 - jnp.eye(3))
+    balances, _ = influence.balance_and_reciprocal_reward(voi, 0.9, "accumulated")
+    weights = jnp.array([5.0, 0.0, 2.0])  # agent 1 adds nothing (a self-centered adversary)
+    got = influence.reciprocal_rewards_in_id_order(balances, voi, lambda rec: weights * rec)
+    prev = np.concatenate([np.zeros((1, 3, 3)), np.asarray(balances)[:-1]])
+    voi, want = np.asarray(voi), np.zeros((4, 3))
+    for t in range(4):
+        for i in range(3):
+            for j in range(3):
+                added = weights[j] * want[t, j] if j < i else 0.0
+                want[t, i] += prev[t, i, j] * (voi[t, i, j] + added) / 2
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
 
 
 def test_next_returns_start_after_the_step():
