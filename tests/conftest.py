@@ -27,8 +27,8 @@ jax_setup.enable_compilation_cache()
 
 MAX_WORKERS = 4
 """The cap of `--numprocesses=auto`. Every worker is a JAX process that compiles and keeps
-its programs (2-3 GB resident each by the end of the suite, measured on 2 workers, plus
-the sweep and CLI subprocesses some tests start), and the suite is a few compile-bound
+its programs (2.7 and 4.3 GB resident at most in a 2-worker run of the suite, plus the
+sweep and CLI subprocesses some tests start), and the suite is a few compile-bound
 files handed out whole: past four workers a many-core laptop gains little and risks its
 memory."""
 
