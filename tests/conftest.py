@@ -19,7 +19,8 @@ import pytest
 flags = os.environ.get("XLA_FLAGS", "")
 if "xla_force_host_platform_device_count" not in flags:
     os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count=2".strip()
-os.environ.setdefault("PIMBOT_CACHE_DIR", tempfile.mkdtemp(prefix="pimbot-jax-cache-"))
+if "PIMBOT_CACHE_DIR" not in os.environ:  # the controller's, inherited by the workers
+    os.environ["PIMBOT_CACHE_DIR"] = tempfile.mkdtemp(prefix="pimbot-jax-cache-")
 
 from pimbot import jax_setup  # noqa: E402
 
