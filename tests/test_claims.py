@@ -142,6 +142,24 @@ def test_verdict_vocabulary():
     assert rules.kind == verdicts.REFUTED and rules.qualifier == "quick budget"
 
 
+def test_a_cause_is_named_only_where_pimbot_and_the_original_code_differ():
+    # ER(4,3) reverse at 25k, measured: 2 of our 10 seeds solve it, none of the 5 logs.
+    ours = np.array([0, 0.01, 1, 0, 0.26, 0, 1, 0, 0, 0])
+    logs = np.array([0, 0, 0, 0, 0.01])
+    p = statistics.difference_p_value(ours, logs)
+    exact = stats.permutation_test(
+        (ours, logs), lambda a, b: a.mean() - b.mean(), permutation_type="independent"
+    ).pvalue  # all 3003 splits: exact
+    assert p == pytest.approx(exact) and 0.3 < p < 0.6
+    assert statistics.difference_p_value(np.zeros(3), np.zeros(4)) == 1.0
+    undecided = judging.disagreement("0.227 not ≤ 0.05", True, ours, logs)
+    assert undecided.kind == verdicts.INCONCLUSIVE and "p = 0.4" in undecided.reason
+    apart = judging.disagreement("0.9 not ≤ 0.05", True, np.full(10, 0.9), logs)
+    assert apart.kind == verdicts.REFUTED and apart.causes == (verdicts.IMPLEMENTATION,)
+    theirs = judging.disagreement("0.9 not ≤ 0.05", False, np.full(10, 0.9), logs)
+    assert theirs.causes == (verdicts.PAPER_CODE,)
+
+
 # --- C1, C3, C4 ---------------------------------------------------------------------------
 
 

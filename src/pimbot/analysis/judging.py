@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from pimbot.analysis import verdicts
-from pimbot.analysis.statistics import MIN_SEEDS_FOR_CI
+from pimbot.analysis.statistics import MIN_SEEDS_FOR_CI, difference_p_value
 from pimbot.analysis.tables import Estimate, estimate
 from pimbot.analysis.verdicts import Verdict
 from pimbot.experiment import store
@@ -177,13 +177,36 @@ def structure_text(env_params: dict, idle_agent: int, reachable: bool) -> str:
 # --- causes -----------------------------------------------------------------------------
 
 
-def disagreement(reason: str, original_agrees_with_paper: bool | None) -> Verdict:
+DIFFERS_P = 0.05
+"""Below this permutation p-value pimbot's seeds and the original code's logs differ."""
+
+
+def disagreement(
+    reason: str,
+    original_agrees_with_paper: bool | None,
+    ours: np.ndarray | None = None,
+    original: np.ndarray | None = None,
+) -> Verdict:
     """A refutation on learning evidence: the original code's logs, where they cover it,
     decide between our implementation (they reproduce the paper) and the paper (they agree
-    with us); without a log the unexplained difference is ours."""
+    with us); without a log the unexplained difference is ours.
+
+    Given the per-seed values behind the rule (`ours`, and `original` per log), "our
+    implementation" also needs the two to differ: where a permutation test of their means
+    cannot tell them apart (p ≥ DIFFERS_P), the logs reproducing the paper and pimbot not
+    doing so is what a few seeds of a bimodal outcome give, and the verdict is
+    inconclusive (too few seeds)."""
     if original_agrees_with_paper is None:
         return verdicts.refuted(verdicts.IMPLEMENTATION, f"{reason} (no original-code log)")
     if original_agrees_with_paper:
+        if ours is not None and original is not None and len(ours) and len(original):
+            p = difference_p_value(ours, original)
+            if p >= DIFFERS_P:
+                return verdicts.inconclusive(
+                    f"{reason}; the original code's logs reproduce the paper, but their "
+                    f"{len(original)} and our {len(ours)} seeds do not differ (permutation "
+                    f"test of the means, p = {p:.2f}): too few seeds to name a cause"
+                )
         return verdicts.refuted(
             verdicts.IMPLEMENTATION, f"{reason}; the original code's logs reproduce the paper"
         )

@@ -101,6 +101,20 @@ class Runs:
         )
         return row, value
 
+    def finals(
+        self, run: RunRecord, column: str, until: int
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Per seed (per log), `column`'s final value of `run` and of the original code's
+        log of the same env and condition, both at their common horizon (≤ `until`); None
+        for the original without a log that has the column."""
+        ours = self.of(run)
+        limit = min(ours.horizon, until)
+        log = self.original(run.env, run.condition, limit)
+        if log is None or not self.of(log).has(column):
+            return ours.final(column, limit), None
+        common = min(limit, self.of(log).horizon)
+        return ours.final(column, common), self.of(log).final(column, common)
+
     def success_reachable(self, run: RunRecord) -> bool:
         """Whether the env's rules let the others succeed with `run`'s adversary idle."""
         key = (
@@ -379,7 +393,11 @@ def c4(data: Runs) -> list[Claim]:
         elif holds(budget):
             at_budget[env] = verdicts.reproduced(f"{budget} at {cut:,} it")
         else:
-            at_budget[env] = judging.disagreement(f"{budget} at {cut:,} it, not {rule}", None)
+            ours, original = data.finals(run, "eval/success", cut)
+            agrees = None if original is None else bool(holds(estimate(original)))
+            at_budget[env] = judging.disagreement(
+                f"{budget} at {cut:,} it, not {rule}", agrees, ours, original
+            )
         if curves.horizon > PAPER_ATTACK_BUDGET:
             rise = full.mean - budget.mean
             late.append(f"{env} {rise:+.3f} from {cut:,} to {curves.horizon:,} it")
