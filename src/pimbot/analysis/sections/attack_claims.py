@@ -508,7 +508,8 @@ def admo_parts(data: Runs, attack: str) -> tuple[dict[str, Verdict], list]:
                 if parts[f"{env} {condition} own success"] is None:
                     parts[f"{env} {condition} own success"] = verdicts.refuted(
                         verdicts.IMPLEMENTATION,
-                        f"own exit success {own} not above the clean per-agent mean ({own_gain})",
+                        f"own exit success {own} not above the clean per-agent mean "
+                        f"(difference {own_gain})",
                     )
             if mode == "disrupt" and not data.success_reachable(run):
                 parts[f"{env} {condition} disrupts"] = (
