@@ -8,6 +8,7 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 from typing import ClassVar
 
 import jax.numpy as jnp
@@ -267,3 +268,37 @@ def test_strings_from_run_directories_are_escaped_in_the_html_report(tmp_path):
     html = (tmp_path / "report" / "report.html").read_text()
     assert "&lt;script&gt;" in html  # the strings are shown ...
     assert "<script>alert" not in html and "<img src=x" not in html  # ... never run
+
+
+@pytest.mark.parametrize("killed_before", ["state", "meta.json", "pending removal"])
+def test_a_checkpoint_write_killed_between_its_files_resumes(tmp_path, monkeypatch, killed_before):
+    """A process killed inside `save_checkpoint` (the sweep ends its workers at any point)
+    leaves the old checkpoint or the new one, whole: never a state whose metadata disagree."""
+    store.save_checkpoint(tmp_path, b"old state", 100)
+    # save_checkpoint's atomic writes: the pending metadata, the state, meta.json
+    allowed = {"state": 1, "meta.json": 2, "pending removal": 3}[killed_before]
+    written, real_write, real_unlink = [], store.write_atomic, Path.unlink
+
+    def write(path, data):
+        written.append(path)
+        if len(written) > allowed:
+            raise SystemExit("killed")
+        real_write(path, data)
+
+    def unlink(self, *args, **kwargs):
+        if self.name == store.PENDING_META:
+            raise SystemExit("killed")
+        return real_unlink(self, *args, **kwargs)
+
+    monkeypatch.setattr(store, "write_atomic", write)
+    monkeypatch.setattr(Path, "unlink", unlink)
+    with pytest.raises(SystemExit):
+        store.save_checkpoint(tmp_path, b"new state", 200)
+    monkeypatch.undo()
+    expected = (b"old state", 100) if killed_before == "state" else (b"new state", 200)
+    assert store.load_checkpoint(tmp_path) == expected
+    assert not (tmp_path / store.CHECKPOINT_DIR / store.PENDING_META).exists()
+    assert (
+        store.read_json(tmp_path / store.CHECKPOINT_DIR / store.STATE_META)["iteration"]
+        == (expected[1])
+    )

@@ -33,6 +33,8 @@ SUMMARY = "summary.json"
 CHECKPOINT_DIR = "checkpoint"
 STATE_FILE = "state.msgpack"
 STATE_META = "meta.json"
+PENDING_META = "meta.pending.json"
+"""The metadata of a checkpoint being written, until its state and meta.json are in place."""
 RESTART_HINT = "rerun with --restart to start this run over, or restore the file"
 
 
@@ -129,10 +131,13 @@ def git_commit() -> str | None:
 
 
 def save_checkpoint(run_dir: Path, state_bytes: bytes, iteration: int) -> None:
-    """The state and its metadata (iteration, size and SHA-256 of the state bytes)."""
+    """The state and its metadata (iteration, size and SHA-256 of the state bytes), as
+    one unit: the new metadata is written first as PENDING_META, then the state, then
+    meta.json, then the pending file goes. Each file is replaced atomically, so a process
+    killed between two steps leaves either the old checkpoint whole or the new state with
+    its pending metadata, which `load_checkpoint` completes (`_settle_pending`)."""
     ckpt = run_dir / CHECKPOINT_DIR
     ckpt.mkdir(exist_ok=True)
-    write_atomic(ckpt / STATE_FILE, state_bytes)
     meta = {
         "iteration": iteration,
         "bytes": len(state_bytes),
@@ -142,7 +147,23 @@ def save_checkpoint(run_dir: Path, state_bytes: bytes, iteration: int) -> None:
     if metrics.exists():  # the rows up to this checkpoint (fsynced before it)
         rows = metrics.read_bytes()
         meta.update(metrics_bytes=len(rows), metrics_sha256=hashlib.sha256(rows).hexdigest())
+    write_json(ckpt / PENDING_META, meta)
+    write_atomic(ckpt / STATE_FILE, state_bytes)
     write_json(ckpt / STATE_META, meta)
+    (ckpt / PENDING_META).unlink()
+
+
+def _settle_pending(ckpt: Path) -> None:
+    """Completes or drops a checkpoint write that a killed process left (`save_checkpoint`):
+    where the state is the pending one (killed after replacing the state), its metadata
+    becomes meta.json; otherwise the state was not replaced and the old checkpoint stands."""
+    pending = read_json(ckpt / PENDING_META)
+    state = ckpt / STATE_FILE
+    digest = pending.get("sha256") if isinstance(pending, dict) else None
+    if state.exists() and digest == hashlib.sha256(state.read_bytes()).hexdigest():
+        os.replace(ckpt / PENDING_META, ckpt / STATE_META)
+    else:
+        (ckpt / PENDING_META).unlink()
 
 
 def load_checkpoint(run_dir: Path) -> tuple[bytes, int] | None:
@@ -154,6 +175,8 @@ def load_checkpoint(run_dir: Path) -> tuple[bytes, int] | None:
     ckpt = run_dir / CHECKPOINT_DIR
     if ckpt.exists() and not ckpt.is_dir():
         raise DamagedRunDir(f"{ckpt}: damaged (not a directory); {RESTART_HINT}")
+    if (ckpt / PENDING_META).exists():
+        _settle_pending(ckpt)
     if not (ckpt / STATE_META).exists() and not (ckpt / STATE_FILE).exists():
         return None
     if not (ckpt / STATE_META).exists() or not (ckpt / STATE_FILE).exists():
