@@ -83,8 +83,15 @@ def section(table: RunTable, ctx: Context) -> Section | None:
         (r for r in runs if r.learner == LEARNER and not variant(r)),
         key=lambda r: condition_key(r.condition),
     )
+
+    def line_label(run: RunRecord) -> str:
+        # two runs of one env and condition (e.g. the IPD at 32 and 2048 games per update)
+        # are told apart by the hyperparameters they override
+        twins = sum(1 for r in grudge if r.env == run.env and r.condition == run.condition)
+        return f"{run.condition} [{run.hparams}]" if twins > 1 and run.hparams else run.condition
+
     panels = [
-        (env, [(r, r.condition, table.colors[r.condition]) for r in grudge if r.env == env])
+        (env, [(r, line_label(r), table.colors[r.condition]) for r in grudge if r.env == env])
         for env in envs
         if any(r.env == env for r in grudge)
     ]
