@@ -427,9 +427,7 @@ def giver_turns(env, cfg, givers, frozen, policy, incentive, opts, traj, epsilon
     """
     meta, cost = optax.adam(cfg.lr_incentive), optax.adam(cfg.lr_cost)
 
-    def turn(carry, inputs):
-        incentive, policy = carry
-        giver, own_meta, own_cost = inputs  # this giver's optimizer states: only its turn uses them
+    def turn(incentive, policy, giver: int, own_meta, own_cost):
         grads = jax.grad(giver_objective, argnums=(0, 4))(
             incentive, giver, env, cfg, policy, traj, epsilon, new_traj
         )
@@ -443,18 +441,18 @@ def giver_turns(env, cfg, givers, frozen, policy, incentive, opts, traj, epsilon
             moved = with_agent_row(moved, giver, own)
         if frozen is not None:
             moved = with_agent_row(moved, frozen, agent_row(incentive, frozen))
-        return (moved, policy_moved), (own_meta, own_cost)
+        return moved, policy_moved, own_meta, own_cost
 
-    # The per-giver optimizer states are the scan's inputs and outputs, not its carry: a
-    # turn reads and writes only its own giver's row, and carrying all N rows (Adam over
-    # every η and θ, per giver) would slice, update and copy them on every turn.
-    order = jnp.asarray(givers, jnp.int32)
-    everyone = list(givers) == list(range(jax.tree.leaves(incentive)[0].shape[0]))
-    rows = opts if everyone else jax.tree.map(lambda x: x[order], opts)
-    (incentive, _), new_rows = jax.lax.scan(turn, (incentive, policy), (order, *rows))
-    if everyone:
-        return incentive, new_rows
-    return incentive, jax.tree.map(lambda x, new: x.at[order].set(new), opts, new_rows)
+    # Unrolled over the (static) givers: each turn reads its own row of the per-giver
+    # optimizer states by a static slice, and the rows are stacked back once. A scan over
+    # the givers made the seed vmap transpose the states to [giver, seed, ...] and back
+    # (as the scan's inputs and outputs) or copy them whole twice per turn (as its carry).
+    n = jax.tree.leaves(incentive)[0].shape[0]
+    rows = [jax.tree.map(lambda x, i=i: x[i], opts) for i in range(n)]
+    for giver in givers:
+        incentive, policy, own_meta, own_cost = turn(incentive, policy, giver, *rows[giver])
+        rows[giver] = (own_meta, own_cost)
+    return incentive, jax.tree.map(lambda *r: jnp.concatenate([x[None] for x in r]), *rows)
 
 
 def incentive_cost(incentive, env, cfg, traj: Trajectory) -> jax.Array:
