@@ -60,6 +60,10 @@ RUN_CODE = SUITE_CODE + (
     "import sys\nfrom pimbot.experiment import sweep\n"
     f"sweep.run(JOBS, sys.argv[1], 'tiny', sweep.SweepOptions(**{OPTIONS!r}))\n"
 )
+# The same suite with training jobs long enough (100 000 iterations) that none can finish
+# between its first checkpoint and an interrupt, however fast the machine.
+LONG_RUN_CODE = RUN_CODE.replace("iterations=1000,", "iterations=100_000,")
+assert LONG_RUN_CODE != RUN_CODE
 namespace: dict = {}
 exec(SUITE_CODE, namespace)
 JOBS = namespace["JOBS"]
@@ -165,7 +169,7 @@ def test_interrupting_the_driver_alone_ends_its_running_jobs_and_workers(tmp_pat
     the whole process group): the sweep must stop its running jobs, not wait for them to
     finish, and leave no worker behind (one left training holds its job's lock)."""
     out = tmp_path / "interrupted"
-    command = [sys.executable, "-c", RUN_CODE, str(out)]
+    command = [sys.executable, "-c", LONG_RUN_CODE, str(out)]
     proc = subprocess.Popen(
         command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
     )
