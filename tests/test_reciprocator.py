@@ -409,6 +409,25 @@ def test_tabulated_ppo_equals_the_per_sample_ppo():
         np.testing.assert_allclose(a, b, rtol=2e-4, atol=2e-6)
 
 
+def test_game_tables_are_each_joint_actions_step_made_once_per_env_and_read_only():
+    """The tables (one compiled call, asked for by a program's init, update and
+    evaluation alike) hold what stepping the game on each joint action gives; an equal env
+    gets the same tables, and nothing can write into the shared arrays."""
+    env = envs.make("ipd-v0", n_players=3, max_steps=4)
+    tables = exact_voi.game_tables(env)
+    assert exact_voi.game_tables(envs.make("ipd-v0", n_players=3, max_steps=4)) is tables
+    with pytest.raises(ValueError, match="read-only"):
+        tables.rewards[0, 0] = 1.0
+    key = jax.random.PRNGKey(0)
+    obs, state = env.reset(key)
+    np.testing.assert_array_equal(tables.state_obs[tables.first_state], obs[0])
+    for j, actions in enumerate(exact_voi.joint_actions(3, env.num_actions)):
+        next_obs, _, rewards, _, info = env.step(key, state, jnp.asarray(actions))
+        np.testing.assert_array_equal(tables.rewards[j], rewards)
+        np.testing.assert_array_equal(tables.state_obs[tables.next_states[j]], next_obs[0])
+        assert tables.success[j] == bool(info["success"])
+
+
 def test_a_scheduled_epoch_count_is_the_ordinary_update_with_that_many_epochs():
     """An `update_schedule` of epochs (1, 3) within a 6-epoch masked scan: agent 0 ends where
     the ordinary PPO with ppo_epochs 1 leaves it, agent 1 where ppo_epochs 3 does (the

@@ -22,6 +22,7 @@ would produce NaN there).
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -76,18 +77,36 @@ def joint_actions(num_agents: int, num_actions: int) -> np.ndarray:
 
 def game_tables(env: MatrixGame) -> GameTables:
     """Tabulates `env.step` over every joint action (a matrix game's step depends on the
-    joint action only), at trace time."""
+    joint action only), at trace time. A program's init, update and evaluation each ask
+    for the tables: they are made once per env and process (one small compiled call),
+    and their arrays are read-only."""
+    try:
+        return _cached_tables(env)
+    except TypeError:  # an unhashable env (a plugin's): tabulated on every call
+        return _tabulate(env)
+
+
+@functools.lru_cache(maxsize=64)
+def _cached_tables(env: MatrixGame) -> GameTables:
+    return _tabulate(env)
+
+
+def _play_every_joint_action(env: MatrixGame, joints: jax.Array):
+    key = jax.random.PRNGKey(0)  # matrix games are deterministic
+    obs, state = env.reset(key)
+    next_obs, _, rewards, _, info = jax.vmap(env.step, in_axes=(None, None, 0))(key, state, joints)
+    return state_codes(obs), state_codes(next_obs), obs[0], next_obs[:, 0], rewards, info
+
+
+def _tabulate(env: MatrixGame) -> GameTables:
     n, a = env.num_agents, env.num_actions
     joints = joint_actions(n, a)
-    key = jax.random.PRNGKey(0)  # matrix games are deterministic
-    with jax.ensure_compile_time_eval():
-        obs, state = env.reset(key)
-        next_obs, _, rewards, _, info = jax.vmap(env.step, in_axes=(None, None, 0))(
-            key, state, jnp.asarray(joints)
-        )
-        first, after = int(state_codes(obs)), np.asarray(state_codes(next_obs))
-        first_obs, after_obs = np.asarray(obs[0]), np.asarray(next_obs[:, 0])
-        rewards, success = np.asarray(rewards, np.float32), np.asarray(info["success"], bool)
+    with jax.ensure_compile_time_eval():  # may be called while a program is traced
+        played = jax.jit(functools.partial(_play_every_joint_action, env))(jnp.asarray(joints))
+    first, after, first_obs, after_obs, rewards, info = jax.device_get(played)
+    first, after = int(first), np.asarray(after)
+    first_obs, after_obs = np.asarray(first_obs), np.asarray(after_obs)
+    rewards, success = np.asarray(rewards, np.float32), np.asarray(info["success"], bool)
     states = np.unique(np.append(after, first)).astype(np.int32)
     state_obs = np.zeros((len(states), env.obs_dim), np.float32)
     state_obs[np.searchsorted(states, after)] = after_obs
@@ -98,7 +117,7 @@ def game_tables(env: MatrixGame) -> GameTables:
         - (joints * place)[:, :, None]
         + place[None, :, None] * np.arange(a)[None, None, :]
     )  # [J, N m, A]
-    return GameTables(
+    tables = GameTables(
         states=states,
         state_obs=state_obs,
         first_state=int(np.searchsorted(states, first)),
@@ -107,6 +126,11 @@ def game_tables(env: MatrixGame) -> GameTables:
         success=success,
         alternative=rewards[swapped],
     )
+    for field in dataclasses.fields(tables):  # shared between callers: never written
+        value = getattr(tables, field.name)
+        if isinstance(value, np.ndarray):
+            value.flags.writeable = False
+    return tables
 
 
 def row_codes(obs: jax.Array) -> jax.Array:
