@@ -562,24 +562,41 @@ class SweepDisplay:
             return elapsed, None
         return elapsed, elapsed / gained * (self.total_work - work)
 
+    def _finished_on_disk(self) -> set[str]:
+        """Jobs reported finished, and those of a still-running task (a group runs its
+        jobs one after the other and reports when the last one ends) that have written
+        their summary."""
+        written = {
+            n
+            for n in self.active
+            if (job_dir(self.suite_dir, self.jobs[n]) / store.SUMMARY).exists()
+        }
+        return self.done | written
+
+    def running(self) -> list[tuple[str, float]]:
+        """(name, fraction done) of the jobs started and not yet finished (queued jobs,
+        and finished jobs of a task still running, left out)."""
+        finished = self._finished_on_disk()
+        return [
+            (n, job_progress(self.suite_dir, self.jobs[n]))
+            for n in self.active
+            if n not in finished and job_dir(self.suite_dir, self.jobs[n]).exists()
+        ]
+
     def headline(self) -> str:
         elapsed, eta = self.eta()
         eta_text = f"{eta / 60:.1f} min" if eta is not None else "-"
-        return (
-            f"jobs {len(self.done)}/{len(self.jobs)} done, elapsed {elapsed / 60:.1f} min, "
-            f"ETA {eta_text}"
-        )
+        done = len(self._finished_on_disk())
+        return f"jobs {done}/{len(self.jobs)} done, elapsed {elapsed / 60:.1f} min, ETA {eta_text}"
 
     def _render(self):
         from rich.table import Table
 
         table = Table.grid(padding=(0, 2))
         table.add_row(self.headline())
-        for name in self.active[:8]:
-            fraction = job_progress(self.suite_dir, self.jobs[name])
-            if job_dir(self.suite_dir, self.jobs[name]).exists():  # started
-                bar = "#" * int(fraction * 20)
-                table.add_row(f"  {name:<34} [{bar:<20}] {fraction:4.0%}")
+        for name, fraction in self.running()[:8]:
+            bar = "#" * int(fraction * 20)
+            table.add_row(f"  {name:<34} [{bar:<20}] {fraction:4.0%}")
         return table
 
     def finished(self, name: str, entry: dict[str, Any]) -> None:
@@ -608,11 +625,7 @@ class SweepDisplay:
         now = time.perf_counter()
         if now - self.last_line >= 10.0:
             self.last_line = now
-            running = [
-                f"{n} {job_progress(self.suite_dir, self.jobs[n]):.0%}"
-                for n in self.active
-                if job_progress(self.suite_dir, self.jobs[n]) > 0
-            ]
+            running = [f"{n} {fraction:.0%}" for n, fraction in self.running()]
             extra = f"; running: {', '.join(running)}" if running else ""
             print(self.headline() + extra, file=sys.stderr, flush=True)
 
