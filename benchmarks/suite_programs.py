@@ -88,6 +88,7 @@ def main() -> None:
         if args.verify or args.compile:
             for job in task if args.verify else task[:1]:
                 r = resolved[job.name]
+                r = programs.with_attack(r, r.attack.program_form())
                 if strategies and programs.shareable(r.attack):
                     r = programs.with_attack(r, programs.shared_attack(r.attack, strategies))
                 t0 = time.perf_counter()

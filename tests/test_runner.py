@@ -138,6 +138,7 @@ def test_sigkill_then_rerun_resumes_with_identical_results(tmp_path):
         ("bypass", None, {"toggle_period": 0}, {"toggle_period": 1000}),
         (None, "incentive_guard", {"outlier_z": 8.0}, {"outlier_z": 2.0}),
         (None, "health_monitor", {"patience": 50}, {"patience": 5}),
+        ("admo", None, {"mode": "stealthy"}, {"mode": "disrupt"}),  # a sign: its program form
     ],
 )
 def test_runs_differing_only_in_attack_or_defense_numbers_share_one_program(attack, defense, a, b):
@@ -161,8 +162,38 @@ def test_runs_differing_only_in_attack_or_defense_numbers_share_one_program(atta
     keys = runner.seed_keys(0, 2)
     states = runner.init_states(first, keys)
     fn = runner.make_chunk_fn(first, 1)
-    texts = [fn.lower(states, keys, r.attack, r.defenses).as_text() for r in (first, second)]
+    texts = [
+        fn.lower(states, keys, r.attack.program_form(), r.defenses).as_text()
+        for r in (first, second)
+    ]
     assert texts[0] == texts[1]
+
+
+def test_admo_modes_on_their_shared_program_give_what_each_static_mode_gives():
+    """Stealthy and disrupt ADMO run on one program (`ADMO.program_form`: the mode's sign
+    traced); each gives bitwise what the attack with its mode compiled in gives."""
+    import dataclasses
+
+    import jax
+
+    from pimbot.experiment.config import resolve
+
+    base = RunConfig(**{**SMALL, "iterations": 20, "eval_period": 10, "seeds": 2})
+    keys = runner.seed_keys(0, 2)
+    shared_fn = None
+    for mode in ("stealthy", "disrupt"):
+        run = dataclasses.replace(base, attack="admo", attack_params=(("mode", mode),))
+        resolved = resolve(run)
+        program = resolved.attack.program_form()
+        assert type(program) is not type(resolved.attack)
+        states = runner.init_states(resolved, keys)
+        own = runner.make_chunk_fn(resolved, 1)(states, keys, resolved.attack, resolved.defenses)
+        states = runner.init_states(resolved, keys)  # the chunk donates its states
+        shared_fn = shared_fn or runner.make_chunk_fn(resolved, 1)
+        shared = shared_fn(states, keys, program, resolved.defenses)
+        for a, b in zip(jax.tree.leaves(own), jax.tree.leaves(shared), strict=True):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=mode)
+    assert shared_fn._cache_size() == 1  # one program for both modes
 
 
 def test_strategy_attacks_on_one_shared_program_give_their_own_results(tmp_path):

@@ -29,7 +29,8 @@ both clipped to
 
 from __future__ import annotations
 
-from typing import ClassVar
+import dataclasses
+from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -125,6 +126,11 @@ class ADMO(Attack):
     @property
     def sign(self) -> float:
         return MODES[self.mode]
+
+    def program_form(self) -> ProgramADMO:
+        """ADMO with its mode's sign traced: stealthy and disrupt runs share a program."""
+        fields = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        return ProgramADMO(**(fields | {"mode": "disrupt", "traced_sign": jnp.float32(self.sign)}))
 
     def emit(self, state, key, given_so_far):
         del state, key
@@ -401,3 +407,18 @@ def step(attack: ADMO, state: ADMOState, view: AdversaryView):
         state, alpha, skip, flat_inc, flat_pol, losses, d_proxy, budget_hits=budget_hits
     )
     return AgentParams(theta_new, eta_new), new_state, metrics
+
+
+@struct.dataclass
+class ProgramADMO(ADMO):
+    """`ADMO.program_form`: the mode's sign (`MODES`) as a traced leaf; the static `mode`
+    is a placeholder. Not registered: the runner builds it from an `ADMO`."""
+
+    traced_sign: Any = -1.0
+
+    @property
+    def sign(self) -> Any:
+        return self.traced_sign
+
+    def program_form(self) -> ProgramADMO:
+        return self

@@ -189,6 +189,13 @@ class Attack:
         """False for the clean (no-attack) config."""
         return self.name != "none"
 
+    def program_form(self) -> Attack:
+        """The attack as a compiled program takes it: equivalent, with any static field
+        that only selects a number (a mode that is a sign) made a traced leaf, so runs
+        that differ only in that choice share one program. The default: the attack
+        itself. Its hooks must give exactly the values the attack's own give."""
+        return self
+
     def is_adversary(self, num_agents: int) -> jax.Array:
         """bool [N], True at the adversary."""
         return jnp.arange(num_agents) == self.adversary

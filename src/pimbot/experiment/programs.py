@@ -14,6 +14,10 @@ member's hook and keeps the chosen member's output with `jnp.where` on a
 traced index, so a job of any member class runs on the same program and gets
 exactly its own member's values. `shared_attack` builds it; `share_key` is the
 key after that folding (the planner's grouping key).
+
+An attack's `program_form` is what the program is compiled for: a static field
+that only selects a number becomes a traced leaf there (ADMO's mode, a ±1
+sign), so jobs that differ only in it share one program too.
 """
 
 from __future__ import annotations
@@ -62,7 +66,7 @@ def program_key(resolved: ResolvedRun, periods: int, seeds: int, devices: int = 
     `seeds` (padded) seeds on `devices` devices: jobs with equal keys share one program."""
     parts = (
         _closed_over(resolved, periods, seeds, devices),
-        _structure(resolved.attack),
+        _structure(resolved.attack.program_form()),
         _structure(resolved.defenses),
     )
     return hashlib.sha256(repr(parts).encode()).hexdigest()[:16]
@@ -79,7 +83,9 @@ def shareable(attack: Attack) -> bool:
 def share_key(resolved: ResolvedRun, periods: int, seeds: int, devices: int = 1) -> str:
     """`program_key` after folding the strategy attacks: the planner's grouping key."""
     attack = resolved.attack
-    attack_part = ("strategies", attack.adversary) if shareable(attack) else _structure(attack)
+    attack_part = (
+        ("strategies", attack.adversary) if shareable(attack) else _structure(attack.program_form())
+    )
     parts = (
         _closed_over(resolved, periods, seeds, devices),
         attack_part,

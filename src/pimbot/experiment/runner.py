@@ -419,7 +419,7 @@ def train(
     period = resolved.eval_period
     per_chunk = evals_per_chunk(resolved.num_evals, period, chunk_iterations)
     per_call = periods_per_call(per_chunk, period, progress)
-    program = resolved
+    program = programs.with_attack(resolved, resolved.attack.program_form())
     if strategies and programs.shareable(resolved.attack):
         program = programs.with_attack(
             resolved, programs.shared_attack(resolved.attack, strategies)
