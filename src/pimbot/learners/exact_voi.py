@@ -103,10 +103,9 @@ def _tabulate(env: MatrixGame) -> GameTables:
     joints = joint_actions(n, a)
     with jax.ensure_compile_time_eval():  # may be called while a program is traced
         played = jax.jit(functools.partial(_play_every_joint_action, env))(jnp.asarray(joints))
-    first, after, first_obs, after_obs, rewards, info = jax.device_get(played)
-    first, after = int(first), np.asarray(after)
-    first_obs, after_obs = np.asarray(first_obs), np.asarray(after_obs)
-    rewards, success = np.asarray(rewards, np.float32), np.asarray(info["success"], bool)
+    first, after, first_obs, after_obs, rewards, info = jax.device_get(played)  # numpy
+    first, rewards = int(first), np.asarray(rewards, np.float32)
+    success = np.asarray(info["success"], bool)
     states = np.unique(np.append(after, first)).astype(np.int32)
     state_obs = np.zeros((len(states), env.obs_dim), np.float32)
     state_obs[np.searchsorted(states, after)] = after_obs
