@@ -139,6 +139,7 @@ def test_sigkill_then_rerun_resumes_with_identical_results(tmp_path):
         (None, "incentive_guard", {"outlier_z": 8.0}, {"outlier_z": 2.0}),
         (None, "health_monitor", {"patience": 50}, {"patience": 5}),
         ("admo", None, {"mode": "stealthy"}, {"mode": "disrupt"}),  # a sign: its program form
+        ("admo_code", None, {"mode": "stealthy"}, {"mode": "disrupt"}),  # the same
     ],
 )
 def test_runs_differing_only_in_attack_or_defense_numbers_share_one_program(attack, defense, a, b):

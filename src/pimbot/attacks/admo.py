@@ -29,7 +29,6 @@ both clipped to
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any, ClassVar
 
 import jax
@@ -38,6 +37,7 @@ import optax
 from flax import struct
 from jax.flatten_util import ravel_pytree
 
+from pimbot.attacks.signed_modes import with_traced_sign
 from pimbot.contracts.attack import AdversaryView, AgentParams, Attack
 from pimbot.contracts.params import check_int, check_number
 from pimbot.envs.core import InvalidParameter
@@ -129,8 +129,7 @@ class ADMO(Attack):
 
     def program_form(self) -> ProgramADMO:
         """ADMO with its mode's sign traced: stealthy and disrupt runs share a program."""
-        fields = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
-        return ProgramADMO(**(fields | {"mode": "disrupt", "traced_sign": jnp.float32(self.sign)}))
+        return with_traced_sign(self, ProgramADMO, "disrupt")
 
     def emit(self, state, key, given_so_far):
         del state, key

@@ -65,13 +65,14 @@ this attack's LIO path acts through the other two.
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
 import optax
 from flax import struct
 
+from pimbot.attacks.signed_modes import with_traced_sign
 from pimbot.contracts.attack import AdversaryView, AgentParams, Attack, UpdateSchedule, agent_row
 from pimbot.contracts.params import check_int, check_number
 from pimbot.envs.core import InvalidParameter
@@ -155,6 +156,15 @@ class ADMOCode(Attack):
         check_int("max_policy_steps", self.max_policy_steps, 1)
         check_int("max_incentive_steps", self.max_incentive_steps, 1)
 
+    @property
+    def sign(self) -> Any:
+        """s of g_pol: the code's sign of the mode (`CODE_MODES`)."""
+        return CODE_MODES[self.mode]
+
+    def program_form(self) -> ProgramADMOCode:
+        """ADMOCode with its mode's sign traced: stealthy and disrupt runs share a program."""
+        return with_traced_sign(self, ProgramADMOCode, "disrupt")
+
     def optimizers(self) -> tuple[optax.GradientTransformation, optax.GradientTransformation]:
         """(meta-gradient Adam, cost Adam), as LIO's."""
         return optax.adam(self.lr_incentive), optax.adam(self.lr_cost)
@@ -236,7 +246,7 @@ def step(attack: ADMOCode, state, view: AdversaryView):
     given = view.emitted(eta_a) * view.valid[..., None, None]
     gap, welfare, spent = signals(attack, view, given)
     g_inc = jnp.clip(gap - attack.beta_cost * spent, -attack.clip, attack.clip)
-    g_pol = jnp.clip(-CODE_MODES[attack.mode] * welfare, -attack.clip, attack.clip)
+    g_pol = jnp.clip(-attack.sign * welfare, -attack.clip, attack.clip)
     alpha = code_weights(g_inc, g_pol, jnp.stack([attack.c1, attack.c2]).astype(jnp.float32))
     policy_steps = scheduled_steps(alpha[1], attack.max_policy_steps)
     incentive_steps = scheduled_steps(alpha[0], attack.max_incentive_steps)
@@ -289,7 +299,7 @@ def ppo_schedule(attack: ADMOCode, view: AdversaryView, ordinary_epochs: int) ->
     no_incentives = jnp.zeros(view.env_rewards.shape + (n,), jnp.float32)
     gap, welfare, _ = signals(attack, view, no_incentives)
     g_inc = jnp.clip(gap, -attack.clip, attack.clip)
-    g_pol = jnp.clip(-CODE_MODES[attack.mode] * welfare, -attack.clip, attack.clip)
+    g_pol = jnp.clip(-attack.sign * welfare, -attack.clip, attack.clip)
     alpha = code_weights(g_inc, g_pol, jnp.stack([attack.c1, attack.c2]).astype(jnp.float32))
     most = 2 * ordinary_epochs
     adversary = attack.is_adversary(n)
@@ -304,3 +314,18 @@ def ppo_schedule(attack: ADMOCode, view: AdversaryView, ordinary_epochs: int) ->
         "admo/reciprocal_weight_scale": scale[a],
     }
     return UpdateSchedule(epochs.astype(jnp.int32), scale, max(most, ordinary_epochs), metrics)
+
+
+@struct.dataclass
+class ProgramADMOCode(ADMOCode):
+    """`ADMOCode.program_form`: the mode's sign (`CODE_MODES`) as a traced leaf; the static
+    `mode` is a placeholder. Not registered: the runner builds it from an `ADMOCode`."""
+
+    traced_sign: Any = 1.0
+
+    @property
+    def sign(self) -> Any:
+        return self.traced_sign
+
+    def program_form(self) -> ProgramADMOCode:
+        return self
