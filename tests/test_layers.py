@@ -81,6 +81,32 @@ def imported(module: str) -> set[str]:
     return {name for name in found if _is_module(name)}
 
 
+def _module_level(statements: list[ast.stmt]):
+    """The statements a module runs on import: its body, into `try`/`with`/`if` blocks,
+    not into functions or classes."""
+    for node in statements:
+        yield node
+        if not isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
+            for field in ("body", "orelse", "finalbody", "handlers"):
+                yield from _module_level(getattr(node, field, []))
+
+
+def third_party() -> list[str]:
+    """The non-standard modules the package imports when one of its modules is imported
+    (imports inside functions are left to the calls that need them), and the names
+    `from` imports take from them (some are modules, e.g. `from scipy import stats`)."""
+    names = set()
+    for path in PACKAGE.rglob("*.py"):
+        for node in _module_level(ast.parse(path.read_text()).body):
+            if isinstance(node, ast.ImportFrom) and node.module and not node.level:
+                names.add(node.module)  # and what it names, where that is a module
+                names |= {f"{node.module}.{a.name}" for a in node.names}
+            elif isinstance(node, ast.Import):
+                names |= {a.name for a in node.names}
+    standard = set(sys.stdlib_module_names) | {"pimbot", "__future__"}
+    return sorted(n for n in names if n.split(".")[0] not in standard)
+
+
 def test_every_module_has_a_layer_and_no_import_goes_up():
     upward = [
         f"{module} (layer {layer(module)}) imports {dep} (layer {layer(dep)})"
@@ -102,13 +128,34 @@ def test_contracts_import_no_plugin():
 def test_every_module_imports_first_in_a_fresh_interpreter():
     """Each module is the first pimbot module a fresh process imports (an import cycle
     that only bites in some import order fails here). One parent process pre-imports
-    the third-party libraries; each module is imported in a forked child of it."""
+    the third-party modules (those the package imports on import that are installed and
+    start no JAX backend, tried each library in a child first); each module is imported in
+    a forked child of it."""
     import subprocess
 
     script = f"""
 import os, sys, importlib, traceback
 sys.path.insert(0, {str(SRC)!r})
-import jax, flax, optax, numpy, matplotlib  # noqa: F401  (third-party only)
+from jax._src import xla_bridge
+def preload(names):  # the third-party modules that import without starting a JAX backend
+    for name in names:
+        try:
+            importlib.import_module(name)
+        except ImportError:  # not a module, or an optional extra that is not installed
+            pass
+    return not xla_bridge.backends_are_initialized()  # forking a started backend can hang
+by_library = {{}}
+for name in {third_party()!r}:
+    by_library.setdefault(name.split(".")[0], []).append(name)
+for names in by_library.values():
+    pid = os.fork()
+    if pid == 0:  # a trial in a child
+        try:
+            os._exit(0 if preload(names) else 1)
+        except BaseException:
+            os._exit(1)
+    if os.waitpid(pid, 0)[1] == 0:
+        preload(names)
 assert not [m for m in sys.modules if m == "pimbot" or m.startswith("pimbot.")]
 failed = []
 for name in {modules()!r}:
