@@ -237,22 +237,26 @@ def test_shared_updates_one_by_one_equal_the_plain_reference(n):
     updates (giver i's surrogate depends on nothing the other giver's step moves)."""
     env = envs.make("escape_room-v0", n_agents=n, min_at_lever=1)
     cfg = dataclasses.replace(CFG, incentive_updates="shared")
-    state = lio.init(jax.random.PRNGKey(11), env, cfg)
-    if n == 2:  # the default path for N = 2 is all at once: build per-giver states
-        state = state.replace(
-            incentive_opt=jax.vmap(
-                lambda _: optax.adam(cfg.lr_incentive).init((state.incentive, state.policy))
-            )(jnp.arange(n)),
-            cost_opt=jax.vmap(optax.adam(cfg.lr_cost).init)(state.incentive),
-        )
-    pm, im = lio._modules(env, cfg)
     eps = jnp.float32(0.3)
-    give = lio.give_fn(im, state.incentive, env.num_actions, cfg.incentive_max)
-    k1, k2 = jax.random.split(jax.random.PRNGKey(12))
-    traj = rollout(env, k1, pg.act_fn(pm, state.policy, eps), give)
-    new_policy = lio.recipient_update(env, cfg, state.policy, state.incentive, traj, eps)
-    new_traj = rollout(env, k2, pg.act_fn(pm, new_policy, eps), give)
     givers = list(range(n))
+
+    @jax.jit
+    def episodes():  # one program, not op by op (each eager op would compile its own)
+        state = lio.init(jax.random.PRNGKey(11), env, cfg)
+        if n == 2:  # the default path for N = 2 is all at once: build per-giver states
+            state = state.replace(
+                incentive_opt=jax.vmap(
+                    lambda _: optax.adam(cfg.lr_incentive).init((state.incentive, state.policy))
+                )(jnp.arange(n)),
+                cost_opt=jax.vmap(optax.adam(cfg.lr_cost).init)(state.incentive),
+            )
+        pm, im = lio._modules(env, cfg)
+        give = lio.give_fn(im, state.incentive, env.num_actions, cfg.incentive_max)
+        k1, k2 = jax.random.split(jax.random.PRNGKey(12))
+        traj = rollout(env, k1, pg.act_fn(pm, state.policy, eps), give)
+        new_policy = lio.recipient_update(env, cfg, state.policy, state.incentive, traj, eps)
+        new_traj = rollout(env, k2, pg.act_fn(pm, new_policy, eps), give)
+        return state, traj, new_traj
 
     @jax.jit
     def turns(state, traj, new_traj):
@@ -261,6 +265,7 @@ def test_shared_updates_one_by_one_equal_the_plain_reference(n):
             env, cfg, givers, None, state.policy, state.incentive, opts, traj, eps, new_traj
         )[0]
 
+    state, traj, new_traj = episodes()
     fast = turns(state, traj, new_traj)
     slow = jax.jit(lambda s, t, u: _one_by_one_reference(env, cfg, givers, s, t, u, eps))(
         state, traj, new_traj
@@ -269,12 +274,17 @@ def test_shared_updates_one_by_one_equal_the_plain_reference(n):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-7)
     if n == 2:
         own = dataclasses.replace(cfg, incentive_updates="own")
-        fresh = lio.init(jax.random.PRNGKey(11), env, own)
-        grads = lio.meta_gradients(env, own, fresh.policy, fresh.incentive, traj, eps, new_traj)
-        expected, _ = lio.meta_step(own, fresh.incentive, fresh.incentive_opt, grads)
-        cost_grad = jax.grad(lio.incentive_cost)(fresh.incentive, env, own, traj)
-        cost_updates, _ = optax.adam(own.lr_cost).update(cost_grad, fresh.cost_opt)
-        expected = optax.apply_updates(expected, cost_updates)
+
+        @jax.jit
+        def own_update(traj, new_traj):
+            fresh = lio.init(jax.random.PRNGKey(11), env, own)
+            grads = lio.meta_gradients(env, own, fresh.policy, fresh.incentive, traj, eps, new_traj)
+            expected, _ = lio.meta_step(own, fresh.incentive, fresh.incentive_opt, grads)
+            cost_grad = jax.grad(lio.incentive_cost)(fresh.incentive, env, own, traj)
+            cost_updates, _ = optax.adam(own.lr_cost).update(cost_grad, fresh.cost_opt)
+            return optax.apply_updates(expected, cost_updates)
+
+        expected = own_update(traj, new_traj)
         for a, b in zip(jax.tree.leaves(fast), jax.tree.leaves(expected), strict=True):
             np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-7)
 
@@ -284,18 +294,20 @@ def test_shared_updates_move_the_other_givers_incentives_for_three_agents():
     cfg = dataclasses.replace(CFG, lr_cost=0.0)
     state, traj, new_traj, eps = _fixed_trajectories(seed=7)
     opts = (state.incentive_opt, state.cost_opt)
-    moved, _ = lio.giver_turns(
-        ENV, cfg, [0], None, state.policy, state.incentive, opts, traj, eps, new_traj
-    )
+
+    def turn(frozen):  # jitted: one program, not op by op
+        return jax.jit(lambda *args: lio.giver_turns(ENV, cfg, [0], frozen, *args)[0])(
+            state.policy, state.incentive, opts, traj, eps, new_traj
+        )
+
+    moved = turn(None)
     for agent in range(ENV.num_agents):
         change = max(
             float(jnp.abs(a[agent] - b[agent]).max())
             for a, b in zip(jax.tree.leaves(moved), jax.tree.leaves(state.incentive), strict=True)
         )
         assert change > 0, agent
-    frozen, _ = lio.giver_turns(
-        ENV, cfg, [0], 1, state.policy, state.incentive, opts, traj, eps, new_traj
-    )
+    frozen = turn(1)
     for a, b in zip(jax.tree.leaves(frozen), jax.tree.leaves(state.incentive), strict=True):
         np.testing.assert_array_equal(np.asarray(a[1]), np.asarray(b[1]))
 
