@@ -384,27 +384,35 @@ def test_tabulated_ppo_equals_the_per_sample_ppo():
     n = 3
     env = envs.make("ipd-v0", n_players=n, max_steps=4)
     cfg = dataclasses.replace(learners.default_config("reciprocator", "ipd-v0"), num_envs=32)
-    state = reciprocator.init(jax.random.PRNGKey(4), env, cfg)
-    trajs = reciprocator.play_batch(env, cfg, state.policy, jax.random.PRNGKey(5), NO_ATTACK, 0, {})
-    returns = jax.random.normal(jax.random.PRNGKey(6), trajs.env_rewards.shape)
-    sign = jnp.ones((n,)).at[0].set(-1.0)
-    per_sample = reciprocator.ppo_update(
-        env, cfg, state.policy, state.value, state.opt, trajs, returns, sign
-    )
     tables = exact_voi.game_tables(env)
-    tabulated = tabular.ppo_update(
-        reciprocator._modules(env, cfg),
-        cfg,
-        tables,
-        state.policy,
-        state.value,
-        state.opt,
-        exact_voi.state_one_hot(trajs.obs, tables).reshape(-1, len(tables.states)),
-        jnp.moveaxis(trajs.actions, 2, 0).reshape(n, -1),
-        jnp.moveaxis(returns, 2, 0).reshape(n, -1),
-        trajs.valid.reshape(-1),
-        sign,
-    )
+
+    @jax.jit
+    def both():  # one program, not op by op
+        state = reciprocator.init(jax.random.PRNGKey(4), env, cfg)
+        trajs = reciprocator.play_batch(
+            env, cfg, state.policy, jax.random.PRNGKey(5), NO_ATTACK, 0, {}
+        )
+        returns = jax.random.normal(jax.random.PRNGKey(6), trajs.env_rewards.shape)
+        sign = jnp.ones((n,)).at[0].set(-1.0)
+        per_sample = reciprocator.ppo_update(
+            env, cfg, state.policy, state.value, state.opt, trajs, returns, sign
+        )
+        tabulated = tabular.ppo_update(
+            reciprocator._modules(env, cfg),
+            cfg,
+            tables,
+            state.policy,
+            state.value,
+            state.opt,
+            exact_voi.state_one_hot(trajs.obs, tables).reshape(-1, len(tables.states)),
+            jnp.moveaxis(trajs.actions, 2, 0).reshape(n, -1),
+            jnp.moveaxis(returns, 2, 0).reshape(n, -1),
+            trajs.valid.reshape(-1),
+            sign,
+        )
+        return per_sample, tabulated
+
+    per_sample, tabulated = both()
     for a, b in zip(jax.tree.leaves(per_sample), jax.tree.leaves(tabulated), strict=True):
         np.testing.assert_allclose(a, b, rtol=2e-4, atol=2e-6)
 
