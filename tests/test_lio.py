@@ -144,10 +144,16 @@ def test_zero_incentives_make_exactly_the_pg_step():
     cfg = dataclasses.replace(CFG, incentive_max=0.0)
     state, traj, _, eps = _fixed_trajectories(seed=2)
     pm, _ = lio._modules(ENV, cfg)
-    lio_step = lio.recipient_update(ENV, cfg, state.policy, state.incentive, traj, eps)
-    pg_step = pg.policy_step(
-        pm, state.policy, traj, traj.env_rewards, eps, cfg.lr_policy, cfg.gamma, cfg.entropy_coef
-    )
+
+    @jax.jit  # one program, not op by op
+    def both(policy, incentive, traj):
+        lio_step = lio.recipient_update(ENV, cfg, policy, incentive, traj, eps)
+        pg_step = pg.policy_step(
+            pm, policy, traj, traj.env_rewards, eps, cfg.lr_policy, cfg.gamma, cfg.entropy_coef
+        )
+        return lio_step, pg_step
+
+    lio_step, pg_step = both(state.policy, state.incentive, traj)
     for a, b in zip(jax.tree.leaves(lio_step), jax.tree.leaves(pg_step), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 

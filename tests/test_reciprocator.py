@@ -54,10 +54,16 @@ def test_voi_of_a_constant_policy_is_zero():
         del obs
         return jnp.stack([jax.random.bernoulli(key).astype(jnp.int32), jnp.int32(0)])
 
-    trajs = jax.vmap(lambda k: rollout(IPD, k, act))(jax.random.split(jax.random.PRNGKey(0), 256))
-    x = influence.model_inputs(trajs.obs, trajs.actions, IPD.num_actions).reshape(-1, 14)
     gamma = 0.96
-    future = jax.vmap(lambda r: influence.next_returns(r, gamma))(trajs.env_rewards)
+
+    @jax.jit  # one program, not op by op
+    def episodes(keys):
+        trajs = jax.vmap(lambda k: rollout(IPD, k, act))(keys)
+        x = influence.model_inputs(trajs.obs, trajs.actions, IPD.num_actions).reshape(-1, 14)
+        future = jax.vmap(lambda r: influence.next_returns(r, gamma))(trajs.env_rewards)
+        return trajs, x, future
+
+    trajs, x, future = episodes(jax.random.split(jax.random.PRNGKey(0), 256))
     masks = jnp.asarray(influence.input_masks(2, IPD.obs_dim, IPD.num_actions))
     hidden = (64, 64)
     models = influence.init_models(jax.random.PRNGKey(1), hidden, 2, 14, 1e-2)
@@ -77,7 +83,9 @@ def test_voi_of_a_constant_policy_is_zero():
         )
     )
     models, loss = fit(models, jax.random.PRNGKey(2))
-    voi = influence.value_of_influence(models.params, hidden, masks, x, gamma)  # [S, j, i]
+    voi = jax.jit(influence.value_of_influence, static_argnums=(1, 4))(
+        models.params, hidden, masks, x, gamma
+    )  # [S, j, i]
     from_constant = float(jnp.abs(voi[:, 1, 0]).mean())
     from_random = float(jnp.abs(voi[:, 0, 1]).mean())
     assert from_random > 0.8, from_random

@@ -154,16 +154,20 @@ def success_reachable_with_idle(env_id: str, env_params: dict, idle_agent: int) 
             actions[agent] = action
         joint.append(actions)
     joint = jnp.array(joint, jnp.int32)  # [J, N]
-    key = jax.random.PRNGKey(0)
-    _, state = env.reset(key)
 
-    def one(state, actions):
-        _, next_state, _, _, info = env.step(key, state, actions)
-        return next_state, info["success"]
+    @jax.jit  # one program, not one per eager op
+    def reachable(key, joint):
+        _, state = env.reset(key)
 
-    first_states, first_success = jax.vmap(one, in_axes=(None, 0))(state, joint)
-    second = jax.vmap(lambda s: jax.vmap(one, in_axes=(None, 0))(s, joint)[1])(first_states)
-    return bool(first_success.any() or second.any())
+        def one(state, actions):
+            _, next_state, _, _, info = env.step(key, state, actions)
+            return next_state, info["success"]
+
+        first_states, first_success = jax.vmap(one, in_axes=(None, 0))(state, joint)
+        second = jax.vmap(lambda s: jax.vmap(one, in_axes=(None, 0))(s, joint)[1])(first_states)
+        return first_success.any() | second.any()
+
+    return bool(reachable(jax.random.PRNGKey(0), joint))
 
 
 def structure_text(env_params: dict, idle_agent: int, reachable: bool) -> str:
