@@ -37,7 +37,7 @@ import optax
 from flax import struct
 from jax.flatten_util import ravel_pytree
 
-from pimbot.attacks.signed_modes import with_traced_sign
+from pimbot.attacks.signed_modes import TracedSign, with_traced_sign
 from pimbot.contracts.attack import AdversaryView, AgentParams, Attack
 from pimbot.contracts.params import check_int, check_number
 from pimbot.envs.core import InvalidParameter
@@ -409,15 +409,8 @@ def step(attack: ADMO, state: ADMOState, view: AdversaryView):
 
 
 @struct.dataclass
-class ProgramADMO(ADMO):
-    """`ADMO.program_form`: the mode's sign (`MODES`) as a traced leaf; the static `mode`
-    is a placeholder. Not registered: the runner builds it from an `ADMO`."""
+class ProgramADMO(TracedSign, ADMO):
+    """`ADMO.program_form`: the mode's sign (`MODES`) as a traced leaf; the static
+    `mode` is a placeholder. Not registered: the runner builds it from an `ADMO`."""
 
     traced_sign: Any = -1.0
-
-    @property
-    def sign(self) -> Any:
-        return self.traced_sign
-
-    def program_form(self) -> ProgramADMO:
-        return self

@@ -72,7 +72,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from pimbot.attacks.signed_modes import with_traced_sign
+from pimbot.attacks.signed_modes import TracedSign, with_traced_sign
 from pimbot.contracts.attack import AdversaryView, AgentParams, Attack, UpdateSchedule, agent_row
 from pimbot.contracts.params import check_int, check_number
 from pimbot.envs.core import InvalidParameter
@@ -317,15 +317,8 @@ def ppo_schedule(attack: ADMOCode, view: AdversaryView, ordinary_epochs: int) ->
 
 
 @struct.dataclass
-class ProgramADMOCode(ADMOCode):
+class ProgramADMOCode(TracedSign, ADMOCode):
     """`ADMOCode.program_form`: the mode's sign (`CODE_MODES`) as a traced leaf; the static
     `mode` is a placeholder. Not registered: the runner builds it from an `ADMOCode`."""
 
     traced_sign: Any = 1.0
-
-    @property
-    def sign(self) -> Any:
-        return self.traced_sign
-
-    def program_form(self) -> ProgramADMOCode:
-        return self

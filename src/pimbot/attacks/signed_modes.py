@@ -3,12 +3,14 @@
 An attack whose static `mode` field is used only through its `sign` (a float) gives its
 `program_form` as a subclass with that sign as a traced leaf, `traced_sign`, and the
 static mode set to a fixed placeholder: every mode then lowers to one program text.
+The subclass is `class ProgramX(TracedSign, X)` declaring `traced_sign: Any = <the
+placeholder's sign>`; `with_traced_sign` builds it from an X.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import jax.numpy as jnp
 
@@ -22,3 +24,15 @@ def with_traced_sign(attack: Attack, form: type[Form], placeholder: str) -> Form
     that field) holding the attack's fields, its mode `placeholder` and its sign traced."""
     fields = {f.name: getattr(attack, f.name) for f in dataclasses.fields(attack)}
     return form(**(fields | {"mode": placeholder, "traced_sign": jnp.float32(attack.sign)}))
+
+
+class TracedSign:
+    """Mixin of a program form: its `sign` is the traced leaf `traced_sign` (a field the
+    form declares), and it is its own program form. Listed before the attack's class."""
+
+    @property
+    def sign(self) -> Any:
+        return self.traced_sign
+
+    def program_form(self):
+        return self
