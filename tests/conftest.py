@@ -2,7 +2,8 @@
 
 Two XLA host devices, so seed sharding is exercised as in `pimbot train`, and
 one persistent compilation cache for the whole session (shared with the CLI
-subprocesses some tests start), so identical programs compile once.
+subprocesses some tests start), so identical programs compile once; a directory this
+session made is removed when it ends.
 
 With pytest-xdist (the `addopts` of pyproject.toml) this module runs first in the
 controller, whose environment every worker inherits: the workers see the same
@@ -12,6 +13,7 @@ read is a warning and a recompile, as between the workers of `pimbot reproduce`)
 """
 
 import os
+import shutil
 import tempfile
 
 import pytest
@@ -19,8 +21,12 @@ import pytest
 flags = os.environ.get("XLA_FLAGS", "")
 if "xla_force_host_platform_device_count" not in flags:
     os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count=2".strip()
+SESSION_CACHE = None
+"""The cache directory this process made (the controller, or a run without xdist), removed
+when its session ends; None where PIMBOT_CACHE_DIR was given (a worker inherits it)."""
 if "PIMBOT_CACHE_DIR" not in os.environ:  # the controller's, inherited by the workers
-    os.environ["PIMBOT_CACHE_DIR"] = tempfile.mkdtemp(prefix="pimbot-jax-cache-")
+    SESSION_CACHE = tempfile.mkdtemp(prefix="pimbot-jax-cache-")
+    os.environ["PIMBOT_CACHE_DIR"] = SESSION_CACHE
 
 from pimbot import jax_setup  # noqa: E402
 
@@ -62,3 +68,10 @@ def pytest_addoption(parser: pytest.Parser, pluginmanager: pytest.PytestPluginMa
     group.addoption("--numprocesses", action="store", help="ignored without pytest-xdist")
     group.addoption("--dist", action="store", help="ignored without pytest-xdist")
     group.addoption("--no-loadscope-reorder", action="store_true", help="ignored too")
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    """Removes the session's compilation cache (about 25 MB) once every worker is done:
+    the process that made it ends its session last."""
+    if SESSION_CACHE is not None:
+        shutil.rmtree(SESSION_CACHE, ignore_errors=True)
