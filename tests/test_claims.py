@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from pimbot.analysis import judging, report, runs, statistics, verdicts
+from pimbot import statistics
+from pimbot.analysis import judging, report, runs, verdicts
 from pimbot.analysis.document import Claim, Section
 from pimbot.analysis.sections import attack_claims, reciprocators, stag_hunt
 from pimbot.analysis.tables import difference, estimate

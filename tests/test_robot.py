@@ -199,9 +199,11 @@ def test_eval_cli_writes_a_ros2_bag_that_reads_back(trained_er21, tmp_path, caps
     )  # fmt: skip
     assert code == 0
     printed = capsys.readouterr().out
-    assert "physics success 1.00" in printed and "abstract success 1.00" in printed
+    # one seed: the range over seeds, never called a CI (pimbot.statistics)
+    assert "physics success 1.00 (range 1.00 … 1.00)" in printed, printed
+    assert "abstract success 1.00 (range 1.00 … 1.00)" in printed and "95 %" not in printed
     summary = json.loads(out_json.read_text())
-    assert summary["physics"]["per_seed"] == [1.0]
+    assert summary["physics"] == {"mean": 1.0, "per_seed": [1.0]}
 
     # The bag holds the first episode exactly as the decision loop published it.
     loaded = evaluate.load_run(trained_er21)
@@ -369,3 +371,31 @@ def test_mp4_through_ffmpeg_where_installed(tmp_path):
         capture_output=True, text=True, check=True,
     )  # fmt: skip
     assert probe.stdout.strip() == "h264,640,480"
+
+
+def test_results_table_gives_a_ci_at_five_seeds_and_the_range_below(tmp_path):
+    """The robot results' intervals are pimbot.statistics' (BCa CI at ≥ 5 seeds, else the
+    range), computed from the per-seed values of the evaluation JSON files."""
+    from pimbot import statistics
+    from pimbot.robot.results import results_table
+
+    paths = []
+    for name, seeds in (("a", [0.2, 0.4, 0.6, 0.8, 1.0]), ("b", [0.0, 1.0])):
+        row = {
+            "label": f"lio ER(2,1) {'clean' if name == 'a' else 'bypass'}",
+            "seeds": list(range(len(seeds))),
+            "episodes_per_seed": 10,
+            "arrived": 1.0,
+            "decision_steps": 2.0,
+            "wall_s": 1.0,
+        }
+        for part in ("physics", "abstract"):
+            row[part] = {"mean": float(np.mean(seeds)), "per_seed": seeds}
+        paths.append(tmp_path / f"{name}.json")
+        paths[-1].write_text(json.dumps(row))
+    table = results_table(paths)
+    ci = statistics.mean_interval([0.2, 0.4, 0.6, 0.8, 1.0])
+    assert ci.kind == statistics.CI and 0.2 < ci.lo < 0.6 < ci.hi <= 1.0
+    assert f"0.60 [{ci.lo:.2f}, {ci.hi:.2f}]" in table
+    assert "0.50 (range 0.00 … 1.00)" in table
+    assert statistics.interval_text([5, 2]) in table

@@ -78,6 +78,10 @@ def test_run_directory_layout_and_finished_rerun(tmp_path):
         "perf/iters_per_s",
     ):
         assert column in rows[0], column
+    # A final value is its mean and per-seed values; no interval (a "95 % CI" of two
+    # seeds would mean nothing: every printed interval comes from pimbot.statistics).
+    final = store.read_json(tmp_path / "r" / "summary.json")["final"]["eval/success"]
+    assert set(final) == {"mean", "per_seed"} and len(final["per_seed"]) == 2
     again = runner.train(run, tmp_path / "r", progress=False)
     assert again.already_finished
     assert len(store.read_metrics(tmp_path / "r")) == 4

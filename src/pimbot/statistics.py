@@ -1,4 +1,8 @@
-"""Intervals over seeds for the report: scipy's BCa bootstrap, or the range below 5 seeds.
+"""Intervals over seeds: scipy's BCa bootstrap, or the range below 5 seeds.
+
+The one definition of an interval over seeds, for every place that prints one: the
+report and `pimbot table` (analysis), the robot case study's results. Run summaries
+(summary.json) hold the per-seed values these are computed from, no interval.
 
 A mean over seeds is reported with a 95 % BCa bootstrap confidence interval
 (`scipy.stats.bootstrap`, method "BCa") when it rests on at least `MIN_SEEDS_FOR_CI`
@@ -78,6 +82,17 @@ def mean_interval(samples, seed: int = 0) -> Interval:
     if np.ptp(x) == 0:
         return Interval(float(x[0]), float(x[0]), CI, x.size)
     return Interval(*_bootstrap((x,), _mean, RESAMPLES, seed), CI, x.size)
+
+
+def text(
+    mean: float, lo: float, hi: float, kind: str, digits: int = 3, signed: bool = False
+) -> str:
+    """A mean with its interval: "m [lo, hi]" for a CI, "m (range lo … hi)" for a RANGE;
+    `signed` writes every number with its sign (differences, margins)."""
+    spec = f"{'+' if signed else ''}.{digits}f"
+    if kind == RANGE:
+        return f"{mean:{spec}} (range {lo:{spec}} … {hi:{spec}})"
+    return f"{mean:{spec}} [{lo:{spec}}, {hi:{spec}}]"
 
 
 def difference_interval(a, b, seed: int = 0) -> Interval:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pimbot.analysis import statistics
+from pimbot import statistics
 from pimbot.experiment import store
 
 

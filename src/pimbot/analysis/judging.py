@@ -15,11 +15,11 @@ from pathlib import Path
 import numpy as np
 
 from pimbot.analysis import verdicts
-from pimbot.analysis.statistics import MIN_SEEDS_FOR_CI, difference_p_value
 from pimbot.analysis.tables import Estimate, estimate
 from pimbot.analysis.verdicts import Verdict
 from pimbot.experiment import store
 from pimbot.experiment.summary import FINAL_WINDOW, convergence_point
+from pimbot.statistics import MIN_SEEDS_FOR_CI, difference_p_value
 
 PAPER_ATTACK_BUDGET = 25_000
 """PIMbot ran its ER attacks for 20–25k iterations (spec/experiments.md)."""

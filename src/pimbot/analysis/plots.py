@@ -1,5 +1,5 @@
 """Figures from run directories: mean learning curves with their bands over seeds (95 % BCa
-bootstrap at ≥ 5 seeds, the min–max range below; analysis.statistics)."""
+bootstrap at ≥ 5 seeds, the min–max range below; pimbot.statistics)."""
 
 from __future__ import annotations
 

@@ -3,7 +3,7 @@
 Every table of `pimbot report` and `pimbot table` is a `Table` of cells; a cell is
 text, a number, None (written "–") or an `Estimate` (a mean and its interval over
 seeds: a 95 % BCa bootstrap CI at ≥ 5 seeds, the min–max range below; see
-analysis.statistics). The same table is written as Markdown, as HTML and as CSV (an
+pimbot.statistics). The same table is written as Markdown, as HTML and as CSV (an
 estimate becomes four columns there: the value, its low and high end, unrounded, and
 the interval's kind).
 """
@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from pimbot.analysis import statistics
+from pimbot import statistics
 
 MISSING = "–"
 INTERVAL = "[interval]"
@@ -41,10 +41,7 @@ class Estimate:
     seeds, written "m (range lo … hi)")."""
 
     def __str__(self) -> str:
-        spec = f"{'+' if self.signed else ''}.{self.digits}f"
-        if self.kind == statistics.RANGE:
-            return f"{self.mean:{spec}} (range {self.lo:{spec}} … {self.hi:{spec}})"
-        return f"{self.mean:{spec}} [{self.lo:{spec}}, {self.hi:{spec}}]"
+        return statistics.text(self.mean, self.lo, self.hi, self.kind, self.digits, self.signed)
 
 
 def estimate(samples: np.ndarray, digits: int = 3, signed: bool = False) -> Estimate | None:

@@ -1,8 +1,11 @@
-"""A run's summary from its files: final values, convergence and confidence intervals.
+"""A run's summary from its files: final values per seed and convergence.
 
-The statistics of evaluation curves (final values, smoothed convergence, bootstrap
-CIs of means and of differences) and `summarize`, which applies them to a run
-directory's metrics.csv; used by training, the analyses and the robot case study.
+The statistics of evaluation curves (final values, smoothed convergence) and
+`summarize`, which applies them to a run directory's metrics.csv; used by training,
+the analyses and the robot case study. A final value is its mean and its per-seed
+values, no interval: every interval printed (the report, `pimbot table`, the robot
+results) is computed from those per-seed values by `pimbot.statistics`, a 95 % BCa CI
+at ≥ 5 seeds and the min–max range below, never a CI of two seeds.
 """
 
 from __future__ import annotations
@@ -57,37 +60,9 @@ def final_value(values: np.ndarray, window: int = FINAL_WINDOW) -> float:
     return float(values[-window:].mean())
 
 
-def bootstrap_ci(
-    samples: np.ndarray, level: float = 0.95, resamples: int = 10_000, seed: int = 0
-) -> tuple[float, float]:
-    """Percentile bootstrap confidence interval of the mean."""
-    samples = np.asarray(samples, dtype=float)
-    if samples.size == 0:
-        return float("nan"), float("nan")
-    rng = np.random.default_rng(seed)
-    means = rng.choice(samples, size=(resamples, samples.size), replace=True).mean(axis=1)
-    alpha = (1.0 - level) / 2
-    return float(np.quantile(means, alpha)), float(np.quantile(means, 1 - alpha))
-
-
-def diff_ci(
-    a: np.ndarray, b: np.ndarray, resamples: int = 10_000, seed: int = 0
-) -> tuple[float, float, float]:
-    """Mean of a − mean of b and its 95 % bootstrap CI (the two samples resampled
-    independently: different runs' seeds are not paired)."""
-    rng = np.random.default_rng(seed)
-    da = rng.choice(a, (resamples, a.size)).mean(axis=1)
-    db = rng.choice(b, (resamples, b.size)).mean(axis=1)
-    diff = da - db
-    return (
-        float(a.mean() - b.mean()),
-        float(np.quantile(diff, 0.025)),
-        float(np.quantile(diff, 0.975)),
-    )
-
-
 def summarize(run_dir: str | Path) -> dict[str, Any]:
-    """Final metrics (mean of the last evaluation points, 95 % CI) and convergence, from files."""
+    """Final metrics (mean of the last evaluation points, per seed and their mean) and
+    convergence, from files."""
     run_dir = Path(run_dir)
     rows = store.read_metrics(run_dir)
     config = store.read_json(run_dir / store.CONFIG)
@@ -97,8 +72,7 @@ def summarize(run_dir: str | Path) -> dict[str, Any]:
     final: dict[str, Any] = {}
     for column in columns:
         per_seed = [final_value(np.array([float(r[column]) for r in by_seed[s]])) for s in seeds]
-        lo, hi = bootstrap_ci(np.array(per_seed))
-        final[column] = {"mean": float(np.mean(per_seed)), "ci95": [lo, hi], "per_seed": per_seed}
+        final[column] = {"mean": float(np.mean(per_seed)), "per_seed": per_seed}
     curve = "eval/return_ratio" if "eval/return_ratio" in columns else "eval/success"
     converged, first = [], []
     for s in seeds:

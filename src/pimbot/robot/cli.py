@@ -51,6 +51,7 @@ def cmd_eval(args) -> int:
             raise InvalidParameter(
                 "rosbag: writing ROS 2 bags needs the rosbags package; pip install 'pimbot[rosbag]'"
             )
+    from pimbot import statistics
     from pimbot.experiment import store
     from pimbot.robot import evaluate
 
@@ -69,8 +70,10 @@ def cmd_eval(args) -> int:
     summary = result.summary()
     for name in ("physics", "abstract"):
         s = summary[name]
-        lo, hi = s["ci95"]
-        print(f"{result.label}: {name} success {s['mean']:.2f} (95 % CI {lo:.2f}–{hi:.2f})")
+        interval = statistics.mean_interval(s["per_seed"])
+        text = statistics.text(s["mean"], interval.lo, interval.hi, interval.kind, digits=2)
+        print(f"{result.label}: {name} success {text}")
+    print(statistics.interval_text([len(result.seeds)]))
     print(
         f"robots reaching their slot in time: {result.arrived:.1%}; decision steps per "
         f"episode {result.decision_steps:.2f}; {result.physics_steps:,} physics steps; "

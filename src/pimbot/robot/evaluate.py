@@ -26,7 +26,6 @@ from pimbot.envs.core import InvalidParameter
 from pimbot.experiment import runs, store
 from pimbot.experiment.config import ResolvedRun, coerce_like
 from pimbot.experiment.runs import LoadedRun
-from pimbot.experiment.summary import bootstrap_ci
 from pimbot.robot.episode import EpisodeResult, PhysicsConfig, run_episode
 from pimbot.rollout import decide
 
@@ -181,13 +180,8 @@ class RunEvaluation:
             "seeds": list(self.seeds),
         }
         for name in ("physics", "abstract"):
-            values = getattr(self, name)
-            lo, hi = bootstrap_ci(values)
-            out[name] = {
-                "mean": float(values.mean()),
-                "ci95": [lo, hi],
-                "per_seed": values.tolist(),
-            }
+            values = getattr(self, name)  # intervals: pimbot.statistics, from per_seed
+            out[name] = {"mean": float(values.mean()), "per_seed": values.tolist()}
         trained = self.run_dir / store.SUMMARY
         if trained.exists():  # the training's own final evaluation window, for reference
             final = store.read_json(trained).get("final", {}).get("eval/success")

@@ -7,7 +7,8 @@ evaluates every escape_room-v0 run under RUNS_DIR (K physics and K abstract
 episodes per seed, `evaluate.evaluate_run`) into OUT_DIR/<run name>.json —
 skipping runs whose JSON exists with the same K, so a killed regeneration
 resumes — and writes the Markdown page (settings and the table of physics vs
-abstract success, mean and 95 % bootstrap CI over seeds) from those JSON files alone.
+abstract success, mean and its interval over seeds: pimbot.statistics) from those JSON
+files alone.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import json
 import sys
 from pathlib import Path
 
+from pimbot import statistics
 from pimbot.attacks import CONDITION_ORDER
 from pimbot.experiment import store
 
@@ -81,7 +83,8 @@ def _env_of(label: str) -> str:
 
 
 def results_table(json_paths: list[Path]) -> str:
-    """Markdown: one row per run, physics vs abstract success with 95 % CIs over seeds."""
+    """Markdown: one row per run, physics vs abstract success with their intervals over
+    seeds (a 95 % BCa CI at ≥ 5 seeds, the range below: pimbot.statistics)."""
     rows = [json.loads(Path(p).read_text()) for p in json_paths]
     rows.sort(
         key=lambda r: (
@@ -92,14 +95,14 @@ def results_table(json_paths: list[Path]) -> str:
         )
     )
     lines = [
-        "| env | attack | seeds × episodes | abstract success (95 % CI) "
-        "| physics success (95 % CI) | robots in time | decision steps | eval wall s |",
+        "| env | attack | seeds × episodes | abstract success [interval] "
+        "| physics success [interval] | robots in time | decision steps | eval wall s |",
         "| --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
 
     def cell(stats) -> str:
-        lo, hi = stats["ci95"]
-        return f"{stats['mean']:.2f} [{lo:.2f}, {hi:.2f}]"
+        interval = statistics.mean_interval(stats["per_seed"])
+        return statistics.text(stats["mean"], interval.lo, interval.hi, interval.kind, 2)
 
     for r in rows:
         lines.append(
@@ -108,6 +111,7 @@ def results_table(json_paths: list[Path]) -> str:
             f"| {cell(r['physics'])} | {r['arrived']:.1%} | {r['decision_steps']:.2f} "
             f"| {r['wall_s']:.0f} |"
         )
+    lines += ["", statistics.interval_text([len(r["seeds"]) for r in rows])]
     return "\n".join(lines) + "\n"
 
 
@@ -133,8 +137,8 @@ def results_document(json_paths: list[Path], command: str) -> str:
         "Every seed's final policy (the run's checkpoint) plays K episodes with "
         "TurtleBot3-sized robots in MuJoCo and K episodes of the abstract ER, ε = 0 with "
         "sampled actions, the attack's hooks on (bypass idles the adversary). Success: the "
-        "gate is open with a robot in the door zone within 5 decisions. Means over seeds, "
-        "95 % bootstrap CIs. *Robots in time*: driving robot-decisions that reached their "
+        "gate is open with a robot in the door zone within 5 decisions. Means over seeds "
+        "with their intervals (below the table). *Robots in time*: driving robot-decisions that reached their "
         "slot within the time limit. Physics settings: " + setting_text + ".\n\n"
         "Regenerate from the run directories:\n\n```sh\n"
         + command

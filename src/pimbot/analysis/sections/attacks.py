@@ -9,8 +9,8 @@ from pimbot.analysis.curves import columns, load_curve
 from pimbot.analysis.document import Context, Section, band_text, final_window_text, seeds_text
 from pimbot.analysis.runs import CLEAN, RunRecord, RunTable, condition_key, natural_key
 from pimbot.analysis.sections import attack_claims
-from pimbot.analysis.statistics import interval_text
 from pimbot.analysis.tables import INTERVAL, Table, difference, estimate, fmt
+from pimbot.statistics import interval_text
 
 GROUP = "attacks"
 CLAIMS_LEARNER = "lio"

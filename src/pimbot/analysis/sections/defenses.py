@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pimbot.analysis import plots, statistics
+from pimbot import statistics
+from pimbot.analysis import plots
 from pimbot.analysis.document import Context, Section, count_text, iterations_text
 from pimbot.analysis.runs import CLEAN, NO_DEFENSE, RunRecord, RunTable, condition_key, natural_key
 from pimbot.analysis.tables import INTERVAL, Table, estimate

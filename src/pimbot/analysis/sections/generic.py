@@ -16,8 +16,8 @@ from pimbot.analysis.runs import (
     distinct_env_labels,
     natural_key,
 )
-from pimbot.analysis.statistics import interval_text
 from pimbot.analysis.tables import INTERVAL, Table, difference, estimate
+from pimbot.statistics import interval_text
 
 STYLES = ("-", "--", ":", "-.")
 """Line style per defense set within a panel (colour is the condition)."""

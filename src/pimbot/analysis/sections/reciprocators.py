@@ -6,9 +6,9 @@ from pimbot.analysis import judging, plots, verdicts
 from pimbot.analysis.curves import load_curve
 from pimbot.analysis.document import Claim, Comparison, Context, Section, band_text, seeds_text
 from pimbot.analysis.runs import CLEAN, RunRecord, RunTable, condition_key, natural_key
-from pimbot.analysis.statistics import interval_text
 from pimbot.analysis.tables import INTERVAL, Table, difference, estimate
 from pimbot.experiment import store
+from pimbot.statistics import interval_text
 
 GROUP = "reciprocators"
 LEARNER = "reciprocator"
