@@ -44,7 +44,10 @@ def suite(tmp_path_factory) -> Path:
 
     root = tmp_path_factory.mktemp("suite")
     real = root / "_real"
-    run = RunConfig(env_id="escape_room-v0", seeds=2, iterations=200, eval_period=20)
+    # The small run of test_runner and test_cli: one compiled program (persistent cache).
+    run = RunConfig(
+        env_id="escape_room-v0", seeds=2, iterations=200, eval_period=100, eval_episodes=4
+    )
     train(run, real, progress=False)
     layout = {
         "attacks/er21_clean": {},
