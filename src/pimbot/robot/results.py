@@ -138,8 +138,8 @@ def results_document(json_paths: list[Path], command: str) -> str:
         "TurtleBot3-sized robots in MuJoCo and K episodes of the abstract ER, ε = 0 with "
         "sampled actions, the attack's hooks on (bypass idles the adversary). Success: the "
         "gate is open with a robot in the door zone within 5 decisions. Means over seeds "
-        "with their intervals (below the table). *Robots in time*: driving robot-decisions that reached their "
-        "slot within the time limit. Physics settings: " + setting_text + ".\n\n"
+        "with their intervals (below the table). *Robots in time*: driving robot-decisions "
+        "that reached their slot within the time limit. Physics settings: " + setting_text + ".\n\n"
         "Regenerate from the run directories:\n\n```sh\n"
         + command
         + "\n```\n\n"
