@@ -93,6 +93,54 @@ def test_voi_of_a_constant_policy_is_zero():
     assert np.all(np.asarray(voi[:, [0, 1], [0, 1]]) == 0.0)
 
 
+def test_distinct_weighted_minibatch_is_the_each_draw_loss_and_gradient():
+    """A minibatch of 512 draws from 15 stored samples (3 batches of one 5-step episode, some
+    padding rows invalid): evaluated row by row or as the 15 samples weighted by their draw
+    counts, the loss and every gradient are the same up to float rounding, and so is a whole
+    refit (both ways, one program each)."""
+    samples, in_dim = 15, 14
+    keys = jax.random.split(jax.random.PRNGKey(3), 5)
+    x = jax.random.normal(keys[0], (samples, in_dim))
+    rewards = jax.random.normal(keys[1], (samples, 2))
+    future = jax.random.normal(keys[2], (samples, 2))
+    valid = jnp.arange(samples) % 5 != 4  # the last step of each episode is padding
+    masks = jnp.asarray(influence.input_masks(2, IPD.obs_dim, IPD.num_actions))
+    hidden = (16, 16)
+    models = influence.init_models(keys[3], hidden, 2, in_dim, 1e-2)
+    idx = jax.random.randint(keys[4], (512,), 0, samples)
+    assert len(np.unique(np.asarray(idx))) == samples  # every sample drawn, many repeatedly
+
+    @jax.jit
+    def both(params):
+        def loss(rows):
+            return jax.value_and_grad(influence.minibatch_loss)(
+                params, hidden, masks, x, rewards, future, valid, idx, rows
+            )
+
+        return loss("each_draw"), loss("distinct_weighted")
+
+    (loss_a, grads_a), (loss_b, grads_b) = both(models.params)
+    assert float(loss_a) > 0
+    np.testing.assert_allclose(float(loss_b), float(loss_a), rtol=1e-5)
+    for a, b in zip(jax.tree.leaves(grads_a), jax.tree.leaves(grads_b), strict=True):
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-4, atol=1e-6)
+
+    @jax.jit
+    def refits(m):
+        def refit(rows):
+            return influence.fit(
+                m, keys[4], hidden, masks, x, rewards, future, valid,
+                lr=1e-3, steps=10, batch_size=512, rows=rows,
+            )  # fmt: skip
+
+        return refit("each_draw"), refit("distinct_weighted")
+
+    (fit_a, last_a), (fit_b, last_b) = refits(models)
+    np.testing.assert_allclose(float(last_b), float(last_a), rtol=1e-4)
+    for a, b in zip(jax.tree.leaves(fit_a.params), jax.tree.leaves(fit_b.params), strict=True):
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), atol=1e-5)
+
+
 def test_balance_recursion_on_a_hand_computed_sequence():
     # voi[t, j, i] = VoI(j → i, t); γ = 0.5.
     voi = jnp.array([[[0, 1], [0, 0]], [[0, 0], [2, 0]], [[0, 3], [1, 0]]], jnp.float32)

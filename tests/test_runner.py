@@ -1,6 +1,7 @@
 """The training runner: seed independence, run directories, resume after a hard kill."""
 
 import csv
+import dataclasses
 import os
 import signal
 import subprocess
@@ -87,6 +88,27 @@ def test_run_directory_layout_and_finished_rerun(tmp_path):
     assert len(store.read_metrics(tmp_path / "r")) == 4
     with pytest.raises(runner.RunDirConflict, match="seeds"):
         runner.train(RunConfig(**SMALL, seeds=3), tmp_path / "r", progress=False)
+
+
+def test_a_run_from_before_a_learner_field_existed_resumes_at_its_default(tmp_path):
+    """A config.json whose identity lacks a learner hyperparameter a later pimbot added
+    (here voi_minibatch_rows) is the same run while the run keeps that field at its
+    default (the behaviour from before it existed), and a different run once it is set."""
+    from pimbot.experiment.config import resolve
+
+    base = RunConfig(env_id="ipd-v0", learner="reciprocator", seeds=1, iterations=10)
+    resolved = resolve(base)
+    metadata = runner.run_metadata(resolved)
+    del metadata["identity"]["learner_config"]["voi_minibatch_rows"]
+    (tmp_path / "r").mkdir()
+    store.write_json(tmp_path / "r" / "config.json", metadata)
+    runner.check_run_dir(tmp_path / "r", resolved)  # the same run
+    other = dataclasses.replace(base, hparams=(("voi_minibatch_rows", "distinct_weighted"),))
+    with pytest.raises(runner.RunDirConflict, match="learner_config"):
+        runner.check_run_dir(tmp_path / "r", resolve(other))
+    changed = dataclasses.replace(base, hparams=(("lr", 1e-3),))  # a field both have
+    with pytest.raises(runner.RunDirConflict, match="learner_config"):
+        runner.check_run_dir(tmp_path / "r", resolve(changed))
 
 
 def _cli(out: Path) -> list[str]:

@@ -254,6 +254,8 @@ def check_run_dir(run_dir: Path, resolved: ResolvedRun) -> None:
         )
     described = json.loads(json.dumps(run_description(resolved), default=str))
     saved, wanted = config.get("identity"), described["identity"]
+    if isinstance(saved, dict):
+        saved = with_later_fields(saved, wanted, resolved)
     if saved != wanted:
         keys = sorted(set(saved or {}) | set(wanted))
         diff = [k for k in keys if (saved or {}).get(k) != wanted.get(k)]
@@ -267,6 +269,47 @@ def check_run_dir(run_dir: Path, resolved: ResolvedRun) -> None:
             f"{config_path}: damaged ({' and '.join(edited)} disagree with its identity: "
             f"the file was edited); {store.RESTART_HINT}"
         )
+
+
+LATER_FIELD_SECTIONS = {
+    "learner_config": lambda r: r.learner_config,
+    "env_params": lambda r: r.env,
+    "attack_params": lambda r: r.attack,
+}
+"""Identity sections that are a config object's fields, and that object of a run."""
+
+
+def _field_defaults(obj: Any) -> dict[str, Any]:
+    """The JSON form of each field default of `obj`'s dataclass (fields without one left out)."""
+    defaults = {}
+    for field in dataclasses.fields(obj):
+        if field.default is not dataclasses.MISSING:
+            defaults[field.name] = field.default
+        elif field.default_factory is not dataclasses.MISSING:
+            defaults[field.name] = field.default_factory()
+    return json.loads(json.dumps(defaults, default=str))
+
+
+def with_later_fields(saved: dict, wanted: dict, resolved: ResolvedRun) -> dict:
+    """A saved identity with the fields a later pimbot added (a learner hyperparameter, an
+    env or attack parameter) filled in where this run has them at their default: a new
+    field's default is the behaviour from before it existed (new variants are options), so
+    a run made then is the same run and resumes. A field set to anything else still
+    differs."""
+    out = dict(saved)
+    for section, config_of in LATER_FIELD_SECTIONS.items():
+        old, new = saved.get(section), wanted.get(section)
+        obj = config_of(resolved)
+        if not (isinstance(old, dict) and isinstance(new, dict)) or not dataclasses.is_dataclass(
+            obj
+        ):
+            continue
+        defaults = _field_defaults(obj)
+        added = {
+            k: v for k, v in new.items() if k not in old and k in defaults and v == defaults[k]
+        }
+        out[section] = {**old, **added}
+    return out
 
 
 def _edited(saved: Any, wanted: dict) -> bool:

@@ -84,6 +84,44 @@ def next_returns(rewards: jax.Array, gamma: float) -> jax.Array:
     return jnp.tensordot(discount.astype(rewards.dtype), rewards, axes=1)
 
 
+MINIBATCH_ROWS = ("each_draw", "distinct_weighted")
+"""How a refit step evaluates its minibatch of `batch_size` rows drawn with replacement
+from the S stored samples: "each_draw" (every drawn row through the models, as the
+original code) or "distinct_weighted" (every stored sample once, weighted by how often it
+was drawn). The two are the same loss and gradient in exact arithmetic, summed in another
+order (results differ at rounding level); "distinct_weighted" costs S rows instead of
+`batch_size`, so it is the faster one where the history holds fewer samples than a
+minibatch (one episode per update: 3 batches × 5 steps = 15 samples against 512 draws)."""
+
+
+def minibatch_loss(
+    params,
+    hidden: Sequence[int],
+    masks: jax.Array,
+    x: jax.Array,
+    rewards: jax.Array,
+    future: jax.Array,
+    valid: jax.Array,
+    idx: jax.Array,
+    rows: str = "each_draw",
+) -> jax.Array:
+    """Every model's weighted MSE on the minibatch of stored samples `idx` [B] (drawn with
+    replacement), evaluated as `rows` says (`MINIBATCH_ROWS`); arguments as `fit`'s."""
+    if rows == "distinct_weighted":
+        draws = jnp.zeros(x.shape[0], jnp.float32).at[idx].add(1.0)  # draws of each sample
+        inputs, reward_targets, future_targets = x, rewards, future
+        weights = valid.astype(jnp.float32) * draws
+    else:
+        inputs, reward_targets, future_targets = x[idx], rewards[idx], future[idx]
+        weights = valid[idx].astype(jnp.float32)
+    num_variants = masks.shape[0] // 2
+    preds = predict(params, hidden, masks, inputs)  # [M, rows, N]
+    targets = jnp.stack([reward_targets] * num_variants + [future_targets] * num_variants)
+    weight = weights[None, :, None]
+    count = jnp.maximum(weight.sum(), 1.0) * preds.shape[-1]
+    return jnp.sum(weight * (preds - targets) ** 2) / count
+
+
 def fit(
     models: InfluenceModels,
     key: jax.Array,
@@ -97,11 +135,13 @@ def fit(
     lr: float,
     steps: int,
     batch_size: int,
+    rows: str = "each_draw",
 ) -> tuple[InfluenceModels, jax.Array]:
     """`steps` Adam steps on the MSE of every model, each on a random minibatch.
 
     Args:
         x: [S, in_dim] inputs; rewards, future: [S, N] targets; valid: [S] sample weights.
+        rows: how a minibatch is evaluated, one of `MINIBATCH_ROWS`.
     Returns:
         (refitted models, mean MSE of the last step).
     """
@@ -109,11 +149,7 @@ def fit(
     optimizer = optax.adam(lr)
 
     def loss_fn(params, idx):
-        preds = predict(params, hidden, masks, x[idx])  # [M, B, N]
-        targets = jnp.stack([rewards[idx]] * num_variants + [future[idx]] * num_variants)
-        weight = valid[idx].astype(jnp.float32)[None, :, None]
-        count = jnp.maximum(weight.sum(), 1.0) * preds.shape[-1]
-        return jnp.sum(weight * (preds - targets) ** 2) / count
+        return minibatch_loss(params, hidden, masks, x, rewards, future, valid, idx, rows)
 
     def step(carry, step_key):
         params, opt = carry

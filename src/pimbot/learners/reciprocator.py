@@ -93,6 +93,11 @@ class ReciprocatorConfig:
     """Adam steps per refit."""
     voi_batch: int = 512
     """Samples per Adam step of the refit (drawn from the stored batches)."""
+    voi_minibatch_rows: str = "each_draw"
+    """How a refit step evaluates its `voi_batch` draws: "each_draw" (every drawn sample,
+    as the original) or "distinct_weighted" (each stored sample once, weighted by its
+    draws: the same loss in exact arithmetic, rounding apart, and far fewer rows where
+    the history holds fewer samples than `voi_batch`, e.g. num_envs = 1; `influence`)."""
     voi: str = "learned"
     """How the value of influence is computed: "learned" (reward and future-value models
     against counterfactual models, any env) or "exact" (matrix games: the known payoffs
@@ -135,6 +140,7 @@ CHOICES = {
     "voi": VOI_KINDS,
     "grudge": GRUDGES,
     "voi_rewards": influence.VOI_REWARDS,
+    "voi_minibatch_rows": influence.MINIBATCH_ROWS,
     "net_input": reciprocator_nets.NET_INPUTS,
     "policy_head": reciprocator_nets.POLICY_HEADS,
     "net_init": reciprocator_nets.NET_INITS,
@@ -385,6 +391,7 @@ def refit_models(env, cfg, state: ReciprocatorState, key, x, trajs: Trajectory):
             lr=cfg.voi_lr,
             steps=cfg.voi_steps,
             batch_size=cfg.voi_batch,
+            rows=cfg.voi_minibatch_rows,
         )
 
     due = refit_due(cfg, state.iteration)
