@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pimbot import statistics
 from pimbot.analysis import plots, verdicts
 from pimbot.analysis.document import Claim, Comparison, Context, Section, count_text
 from pimbot.analysis.runs import RunTable, condition_colors, condition_key, natural_key
@@ -15,6 +16,7 @@ from pimbot.analysis.verdicts import Verdict
 from pimbot.experiment import store
 from pimbot.profiling import decision_loop
 from pimbot.profiling import report as profile_files
+from pimbot.statistics import interval_text
 
 PROFILE_RUN = "profile/er21_paired"
 CONTROLLERS = decision_loop.CONTROLLERS
@@ -442,7 +444,8 @@ def profile_section(table: RunTable, ctx: Context) -> Section | None:
 
 
 def _estimate(entry: dict) -> Estimate:
-    return Estimate(entry["mean"], *entry["ci95"], digits=2)
+    """A robot summary's success with its interval over seeds, from its per-seed values."""
+    return estimate(np.asarray(entry["per_seed"], dtype=float), digits=2)
 
 
 def robot_section(table: RunTable, ctx: Context) -> Section | None:
@@ -469,21 +472,22 @@ def robot_section(table: RunTable, ctx: Context) -> Section | None:
     path, figure = ctx.figure(
         "fig9_robot.png",
         "Fig. 9: success in physics vs the abstract env (solid: physics, hatched: abstract; "
-        f"mean over {count_text((len(s['seeds']) for _, _, s in results), 'seeds')}, 95 % "
-        "bootstrap CI)",
+        f"mean over {count_text((len(s['seeds']) for _, _, s in results), 'seeds')}; "
+        f"{interval_text(len(s['seeds']) for _, _, s in results)})",
     )
     colors = condition_colors([r.condition for r in table.records] + [c for _, c, _ in results])
     plot_robot(results, path, colors)
-    header = ["env", "condition", "seeds", "episodes/seed", "physics success [CI]"]
-    header += ["abstract success [CI]", "arrived", "physics steps/s"]
+    header = ["env", "condition", "seeds", "episodes/seed", f"physics success {INTERVAL}"]
+    header += [f"abstract success {INTERVAL}", "arrived", "physics steps/s"]
     return Section(
         "Robot case study: trained policies in MuJoCo physics (Fig. 9)",
         text=[
             "Each trained Escape Room run of the attack group drives TurtleBot3-sized robots in "
             "MuJoCo (go-to-goal controller, odometry and actuation noise); success in physics "
             "next to success of the same policies in the abstract environment, same episodes "
-            "per seed, mean and 95 % bootstrap CI over seeds. 'arrived' = fraction of driving "
-            "decisions whose robot reached its zone in time."
+            "per seed, mean over seeds with its interval: "
+            + interval_text(len(s["seeds"]) for _, _, s in results)
+            + ". 'arrived' = fraction of driving decisions whose robot reached its zone in time."
         ],
         tables=[Table(header, rows, name="robot")],
         figures=[figure],
@@ -503,8 +507,9 @@ def plot_robot(results: list[tuple[str, str, dict]], path, colors: dict) -> None
             (0.2, "abstract", {"hatch": "///", "alpha": 0.45, "edgecolor": "white"}),
         ):
             means = [s[key]["mean"] for _, s in mine]
-            lo = [s[key]["mean"] - s[key]["ci95"][0] for _, s in mine]
-            hi = [s[key]["ci95"][1] - s[key]["mean"] for _, s in mine]
+            intervals = [statistics.mean_interval(s[key]["per_seed"]) for _, s in mine]
+            lo = [m - i.lo for m, i in zip(means, intervals, strict=True)]
+            hi = [i.hi - m for m, i in zip(means, intervals, strict=True)]
             ax.bar(x + offset, means, 0.4, yerr=[lo, hi], color=shades, capsize=2, **style)
             plots.mark_zero_bars(ax, x + offset, means, "0.3")
         ax.set_xticks(x, [c for c, _ in mine], rotation=45, ha="right", fontsize=8)
