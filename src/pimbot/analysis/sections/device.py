@@ -16,7 +16,6 @@ from pimbot.analysis.verdicts import Verdict
 from pimbot.experiment import store
 from pimbot.profiling import decision_loop
 from pimbot.profiling import report as profile_files
-from pimbot.statistics import interval_text
 
 PROFILE_RUN = "profile/er21_paired"
 CONTROLLERS = decision_loop.CONTROLLERS
@@ -473,7 +472,7 @@ def robot_section(table: RunTable, ctx: Context) -> Section | None:
         "fig9_robot.png",
         "Fig. 9: success in physics vs the abstract env (solid: physics, hatched: abstract; "
         f"mean over {count_text((len(s['seeds']) for _, _, s in results), 'seeds')}; "
-        f"{interval_text(len(s['seeds']) for _, _, s in results)})",
+        f"{statistics.interval_text(len(s['seeds']) for _, _, s in results)})",
     )
     colors = condition_colors([r.condition for r in table.records] + [c for _, c, _ in results])
     plot_robot(results, path, colors)
@@ -486,7 +485,7 @@ def robot_section(table: RunTable, ctx: Context) -> Section | None:
             "MuJoCo (go-to-goal controller, odometry and actuation noise); success in physics "
             "next to success of the same policies in the abstract environment, same episodes "
             "per seed, mean over seeds with its interval: "
-            + interval_text(len(s["seeds"]) for _, _, s in results)
+            + statistics.interval_text(len(s["seeds"]) for _, _, s in results)
             + ". 'arrived' = fraction of driving decisions whose robot reached its zone in time."
         ],
         tables=[Table(header, rows, name="robot")],
