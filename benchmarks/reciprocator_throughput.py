@@ -41,6 +41,7 @@ from pimbot.experiment.presets import SPEC_BALANCE  # noqa: E402
 from pimbot.experiment.runner import (  # noqa: E402
     init_states,
     make_chunk_fn,
+    program_args,
     seed_keys,
     seed_sharding,
 )
@@ -69,7 +70,7 @@ def measure(name: str, seeds: int, updates: int, repeats: int) -> dict:
     sharding, padded = seed_sharding(seeds)
     keys = seed_keys(0, padded)
     states = init_states(resolved, jax.vmap(lambda k: jax.random.fold_in(k, 0))(keys))
-    hooks = (resolved.attack, resolved.defenses)
+    hooks = program_args(resolved)
     roots = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
     if sharding is not None:
         states, roots = jax.device_put(states, sharding), jax.device_put(roots, sharding)

@@ -194,11 +194,10 @@ def lower(runner, resolved, periods: int, seeds: int):
     import jax
 
     keys = runner.seed_keys(resolved.run.first_seed, seeds)
-    states = runner.make_init_fn(resolved)(keys, resolved.attack, resolved.defenses)
+    args = runner.program_args(resolved)
+    states = runner.make_init_fn(resolved)(keys, *args)
     roots = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
-    return runner.make_chunk_fn(resolved, periods).lower(
-        states, roots, resolved.attack, resolved.defenses
-    )
+    return runner.make_chunk_fn(resolved, periods).lower(states, roots, *args)
 
 
 if __name__ == "__main__":

@@ -179,7 +179,7 @@ def run_case(config: str, num_seeds: int, args: argparse.Namespace) -> dict[str,
     init_keys = jax.vmap(lambda k: jax.random.fold_in(k, 0))(keys)
     eval_roots = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
     states = runner.init_states(resolved, init_keys)
-    attack, defenses = resolved.attack, resolved.defenses
+    hooks = runner.program_args(resolved)
     if sharding is not None:
         states = jax.device_put(states, sharding)
         eval_roots = jax.device_put(eval_roots, sharding)
@@ -188,7 +188,7 @@ def run_case(config: str, num_seeds: int, args: argparse.Namespace) -> dict[str,
 
     t0 = time.perf_counter()
     chunk_fn = runner.make_chunk_fn(resolved, num_periods)
-    chunk_fn = chunk_fn.lower(states, eval_roots, attack, defenses).compile()
+    chunk_fn = chunk_fn.lower(states, eval_roots, *hooks).compile()
     compile_s = time.perf_counter() - t0
     rss_compiled = peak_rss_bytes()
     try:
@@ -197,12 +197,12 @@ def run_case(config: str, num_seeds: int, args: argparse.Namespace) -> dict[str,
     except Exception:  # not every backend implements it
         xla_temp = None
 
-    states, chunk_metrics = chunk_fn(states, eval_roots, attack, defenses)  # warm-up
+    states, chunk_metrics = chunk_fn(states, eval_roots, *hooks)  # warm-up
     jax.block_until_ready((states, chunk_metrics))
     call_s = []
     for _ in range(args.repeats):
         t = time.perf_counter()
-        states, chunk_metrics = chunk_fn(states, eval_roots, attack, defenses)
+        states, chunk_metrics = chunk_fn(states, eval_roots, *hooks)
         jax.block_until_ready((states, chunk_metrics))
         call_s.append(time.perf_counter() - t)
 

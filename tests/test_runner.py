@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pimbot.experiment import runner, store
+from pimbot.experiment import programs, runner, store
 from pimbot.experiment.config import RunConfig
 
 SMALL = dict(
@@ -190,7 +190,9 @@ def test_runs_differing_only_in_attack_or_defense_numbers_share_one_program(atta
     states = runner.init_states(first, keys)
     fn = runner.make_chunk_fn(first, 1)
     texts = [
-        fn.lower(states, keys, r.attack.program_form(), r.defenses).as_text()
+        fn.lower(
+            states, keys, r.attack.program_form(), r.defenses, programs.env_numbers(r.env)
+        ).as_text()
         for r in (first, second)
     ]
     assert texts[0] == texts[1]
@@ -218,10 +220,13 @@ def test_admo_modes_share_one_program_and_give_what_the_static_mode_gives():
     for mode, r in resolved.items():
         assert type(r.attack.program_form()) is not type(r.attack)
         states = runner.init_states(r, keys)
-        shared[mode] = jax.tree.leaves(shared_fn(states, keys, r.attack.program_form(), r.defenses))
+        numbers = programs.env_numbers(r.env)
+        shared[mode] = jax.tree.leaves(
+            shared_fn(states, keys, r.attack.program_form(), r.defenses, numbers)
+        )
     assert shared_fn._cache_size() == 1  # one program for both modes
     r = resolved["stealthy"]
-    own = runner.make_chunk_fn(r, 1)(runner.init_states(r, keys), keys, r.attack, r.defenses)
+    own = runner.make_chunk_fn(r, 1)(runner.init_states(r, keys), keys, *runner.program_args(r))
     for a, b in zip(jax.tree.leaves(own), shared["stealthy"], strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     assert any(
@@ -229,11 +234,62 @@ def test_admo_modes_share_one_program_and_give_what_the_static_mode_gives():
     )
 
 
+def test_escape_rooms_differing_only_in_m_share_one_program_and_keep_their_own_m():
+    """Escape Room's M is a traced field (`traced_fields`): ER(4, 2) and ER(4, 3) have one
+    program key and run on one compiled chunk, where ER(4, 3) gives bitwise what its own
+    chunk gives (M = 2 compiled into the shared one would show here) and not what
+    ER(4, 2) gives."""
+    import jax
+
+    from pimbot.experiment.config import resolve
+
+    def er4(m: int):
+        run = RunConfig(
+            **{**SMALL, "iterations": 10, "eval_period": 5, "eval_episodes": 2, "seeds": 2},
+            env_params=(("n_agents", 4), ("min_at_lever", m)),
+        )
+        return resolve(run)
+
+    first, second = er4(2), er4(3)
+    assert programs.program_key(first, 1, 2) == programs.program_key(second, 1, 2)
+    assert programs.env_numbers(second.env)["min_at_lever"] == 3
+    keys = runner.seed_keys(0, 2)
+    shared_fn = runner.make_chunk_fn(first, 2)
+    shared = {
+        r.env.min_at_lever: jax.tree.leaves(
+            shared_fn(runner.init_states(r, keys), keys, *runner.program_args(r))
+        )
+        for r in (first, second)
+    }
+    assert shared_fn._cache_size() == 1
+    own_fn = runner.make_chunk_fn(second, 2)
+    own = own_fn(runner.init_states(second, keys), keys, *runner.program_args(second))
+    for a, b in zip(jax.tree.leaves(own), shared[3], strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert any(not np.array_equal(a, b) for a, b in zip(shared[2], shared[3], strict=True))
+
+
+def test_env_numbers_refuse_a_traced_field_that_is_not_a_number():
+    import dataclasses as dc
+    from typing import ClassVar
+
+    from pimbot.envs.core import InvalidParameter
+
+    @dc.dataclass(frozen=True)
+    class Odd:
+        shape: tuple = (2, 3)
+        traced_fields: ClassVar[tuple[str, ...]] = ("shape",)
+
+    with pytest.raises(
+        InvalidParameter, match=r"Odd.traced_fields: shape must be a bool, int or float field"
+    ):
+        programs.env_numbers(Odd())
+
+
 def test_strategy_attacks_on_one_shared_program_give_their_own_results(tmp_path):
     """Clean, fake incentive and bypass run on one `programs.Strategies` program (one
     compile, the program kept in a ProgramCache) write what each writes on its own program:
     bitwise equal metrics and checkpoints."""
-    from pimbot.experiment import programs
     from pimbot.experiment.config import resolve
 
     runs = {

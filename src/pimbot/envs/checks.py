@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from pimbot.envs.core import Env, step_metric_names
+from pimbot.envs.core import Env, step_metric_names, traced_fields, traced_values, with_traced
 
 _PROTOCOL_FLAGS = ("incentive_obs", "stochastic", "terminates_on_success")
 
@@ -67,6 +67,7 @@ def check_env(
         _assert_trees_close(
             row, trajectory, f"row {b} of the vmapped rollout and the rollout of its key"
         )
+    _check_traced_fields(env, keys[0], actions, trajectories[0])
     differ = [not _trees_equal(other, trajectories[0]) for other in trajectories[1:]]
     if env.stochastic:
         assert any(differ), (
@@ -104,6 +105,24 @@ def _rollout(env: Env, key: jax.Array, actions: jax.Array) -> dict[str, Any]:
 
     _, trajectory = jax.lax.scan(body, (obs, state, key, jnp.zeros((), jnp.int32)), actions)
     return trajectory
+
+
+def _check_traced_fields(env: Env, key: jax.Array, actions: jax.Array, expected) -> None:
+    """The rollout with the traced fields as traced arguments (as a training program
+    takes them) equals the rollout with them compiled in."""
+    fields = traced_fields(env)
+    if not fields:
+        return
+    values = traced_values(env)
+    rollout = jax.jit(lambda v, k, a: _rollout(with_traced(env, v), k, a))
+    try:
+        got = rollout(values, key, actions)
+    except Exception as error:  # a tracer where a concrete value was needed
+        raise AssertionError(
+            f"{env}: traced_fields {fields}: reset or step uses one as a static value "
+            f"(a shape or Python control flow): {type(error).__name__}"
+        ) from None
+    _assert_trees_equal(_to_numpy(got), expected, "the rollout with traced_fields traced")
 
 
 def _check_attributes(env: Env) -> None:

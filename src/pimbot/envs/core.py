@@ -8,11 +8,13 @@ vmap-able. Variants are parameters, never copied classes.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
 import jax
+import numpy as np
 
 
 class InvalidParameter(ValueError):
@@ -41,7 +43,11 @@ class Env(Protocol):
     Optional: ``step_metrics``, a tuple of `info` keys whose per-step values (scalar
     or [N], numbers or bools) are summed over each episode's steps and reported by
     every learner as evaluation metrics of those names (``eval/<name>``, per agent
-    ``eval/<name>/agent_<i>``); see `step_metric_names`.
+    ``eval/<name>/agent_<i>``); see `step_metric_names`. Optional: ``traced_fields``
+    (a class attribute), numeric fields used only as values in `reset` and `step` (never
+    in a shape or Python control flow): training programs take them as traced arguments,
+    so runs that differ only in them share one compiled program
+    (`traced_values`, `with_traced`).
     """
 
     num_agents: int
@@ -81,6 +87,43 @@ class Env(Protocol):
             env_return: float32 [N] environment return of each agent.
         """
         ...
+
+
+def traced_fields(env: Env) -> tuple[str, ...]:
+    """The fields `env` declares traced (`Env.traced_fields`; none by default)."""
+    return tuple(getattr(env, "traced_fields", ()))
+
+
+def traced_values(env: Env) -> dict[str, np.ndarray]:
+    """Each traced field's value as a 0-d bool, int32 or float32 array (a program's
+    traced argument); a field that is no bool, int or float is refused by name."""
+    values: dict[str, np.ndarray] = {}
+    for name in traced_fields(env):
+        value = getattr(env, name, None)
+        if isinstance(value, bool):
+            values[name] = np.bool_(value)
+        elif isinstance(value, int):
+            values[name] = np.int32(value)
+        elif isinstance(value, float):
+            values[name] = np.float32(value)
+        else:
+            raise InvalidParameter(
+                f"{type(env).__name__}.traced_fields: {name} must be a bool, int or float "
+                f"field, got {value!r}"
+            )
+    return values
+
+
+def with_traced(env: Env, values: Mapping[str, Any]) -> Env:
+    """`env` with its traced fields set to `values` (tracers inside a program; its
+    validation is not rerun: the values were validated when it was made)."""
+    fields = traced_fields(env)
+    if not fields:
+        return env
+    traced = copy.copy(env)
+    for name in fields:
+        object.__setattr__(traced, name, values[name])
+    return traced
 
 
 def step_metric_names(env: Env) -> tuple[str, ...]:

@@ -25,6 +25,7 @@ and the optimal team return are those of ER(N, M)). Its per-step metric "transfe
 from __future__ import annotations
 
 import dataclasses
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -61,6 +62,8 @@ class EscapeRoom:
     idle_action: int = dataclasses.field(default=START, init=False)
     terminates_on_success: bool = dataclasses.field(default=True, init=False)
     step_metrics: tuple[str, ...] = dataclasses.field(default=("exit_success",), init=False)
+    traced_fields: ClassVar[tuple[str, ...]] = ("min_at_lever",)
+    """M is a value in `step` only: ER(N, M) for every M runs on one compiled program."""
 
     def __post_init__(self) -> None:
         check_int("n_agents", self.n_agents, 2)

@@ -18,6 +18,12 @@ key after that folding (the planner's grouping key).
 An attack's `program_form` is what the program is compiled for: a static field
 that only selects a number becomes a traced leaf there (ADMO's mode, a ±1
 sign), so jobs that differ only in it share one program too.
+
+An env's `traced_fields` (optional) name the numbers its compiled code uses only
+as values, never in a shape or in Python control flow (Escape Room's M): the
+program takes them, and the env's known optimal team return, as traced
+arguments (`env_numbers`) and runs on `envs.core.with_traced(env, numbers)`, so ER(4, 2)
+and ER(4, 3) share one program.
 """
 
 from __future__ import annotations
@@ -28,9 +34,11 @@ from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from pimbot.contracts.attack import Attack
+from pimbot.envs.core import traced_fields, traced_values, with_traced
 from pimbot.experiment.config import ResolvedRun
 
 
@@ -45,12 +53,34 @@ def _weak(x: Any) -> bool:
     return isinstance(x, (bool, int, float, complex)) or bool(getattr(x, "weak_type", False))
 
 
+def env_numbers(env: Any) -> dict[str, Any]:
+    """The traced numbers of `env`'s program: its traced fields (`envs.core.traced_values`)
+    and, where the env knows its optimal team return, that return's reciprocal and the
+    optimal-rate threshold 0.9 × it."""
+    numbers: dict[str, Any] = traced_values(env)
+    optimum = getattr(env, "optimal_team_return", None)
+    if optimum:
+        # XLA turns a division by a constant into a product with its float32 reciprocal;
+        # the ratio is that product, so it stays bitwise what it was with the optimum
+        # compiled in
+        numbers["optimal_team_return_reciprocal"] = np.float32(1.0) / np.float32(optimum)
+        numbers["optimal_threshold"] = np.float32(0.9 * optimum)
+    return numbers
+
+
+def _env_structure(env: Any) -> str:
+    """`env`'s repr with its traced fields left out (their values are arguments)."""
+    return repr(with_traced(env, {name: "<traced>" for name in traced_fields(env)}))
+
+
 def _closed_over(resolved: ResolvedRun, periods: int, seeds: int, devices: int) -> tuple:
-    """What the chunk closes over, besides the attack and the defenses."""
+    """What the chunk closes over, besides the attack, the defenses and the env's
+    traced numbers (their structure is part of the key)."""
     return (
         type(resolved.env).__module__,
         type(resolved.env).__qualname__,
-        repr(resolved.env),
+        _env_structure(resolved.env),
+        _structure(env_numbers(resolved.env)),
         resolved.run.learner,
         repr(resolved.learner_config),
         resolved.eval_period,

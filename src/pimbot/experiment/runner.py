@@ -26,7 +26,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 import pimbot
-from pimbot.envs.core import InvalidParameter
+from pimbot.envs.core import InvalidParameter, with_traced
 from pimbot.experiment import programs, store, tracking
 from pimbot.experiment.config import ResolvedRun, RunConfig, env_parameters, resolve
 from pimbot.experiment.progress import CompileNotice, Progress
@@ -100,34 +100,41 @@ def evals_per_chunk(num_evals: int, eval_period: int, target: int = TARGET_CHUNK
     return best
 
 
-def reduce_eval(env, per_episode: dict[str, jax.Array], adversary: int) -> dict[str, jax.Array]:
+def reduce_eval(
+    env, per_episode: dict[str, jax.Array], adversary: int, numbers: dict | None = None
+) -> dict[str, jax.Array]:
     """Means over evaluation episodes, the adversary's margins, and, where the optimum
-    team return is known, the return ratio and the optimal rate."""
+    team return is known, the return ratio and the optimal rate (the optimum and the
+    threshold from `numbers`, the program's `programs.env_numbers`; None: from `env`)."""
     out = {name: value.mean(axis=0) for name, value in per_episode.items()}
     others = jnp.arange(env.num_agents) != adversary
     for name in ("return_env", "return_total"):
         values = out[name]
         margin = values[adversary] - jnp.sum(values * others) / (env.num_agents - 1)
         out[f"adversary_margin_{name.removeprefix('return_')}"] = margin
-    optimum = getattr(env, "optimal_team_return", None)
-    if optimum:
-        out["return_ratio"] = out["team_return"] / optimum
-        out["optimal_rate"] = (per_episode["team_return"] >= 0.9 * optimum).mean()
+    numbers = programs.env_numbers(env) if numbers is None else numbers
+    if "optimal_threshold" in numbers:
+        out["return_ratio"] = out["team_return"] * numbers["optimal_team_return_reciprocal"]
+        threshold = numbers["optimal_threshold"]
+        out["optimal_rate"] = (per_episode["team_return"] >= threshold).mean()
     return out
 
 
 def make_chunk_fn(resolved: ResolvedRun, num_periods: int):
     """A jitted function running `num_periods` evaluation periods for every seed.
 
-    The attack and the defenses are arguments, not constants: their numeric
-    parameters are traced, so runs that differ only in them share the program.
+    The attack, the defenses and the env's numbers (`programs.env_numbers`) are
+    arguments, not constants: their numeric parameters are traced, so runs that differ
+    only in them share the program.
 
-    Returns fn(states [S], eval_roots [S], attack, defenses) -> (states, metrics with
-    leaves [S, num_periods, ...]).
+    Returns fn(states [S], eval_roots [S], attack, defenses, env numbers) -> (states,
+    metrics with leaves [S, num_periods, ...]).
     """
-    env, learner, cfg = resolved.env, resolved.learner, resolved.learner_config
+    learner, cfg = resolved.learner, resolved.learner_config
 
-    def one_seed(state, eval_root, attack, defenses):
+    def one_seed(state, eval_root, attack, defenses, numbers):
+        env = with_traced(resolved.env, numbers)
+
         def period(state, _):
             state, train = jax.lax.scan(
                 lambda s, _: learner.update(s, env, cfg, attack, defenses),
@@ -141,7 +148,7 @@ def make_chunk_fn(resolved: ResolvedRun, num_periods: int):
             )
             row = {
                 "iteration": state.iteration,
-                "eval": reduce_eval(env, per_episode, attack.adversary),
+                "eval": reduce_eval(env, per_episode, attack.adversary, numbers),
                 "train": jax.tree.map(lambda x: x.mean(axis=0), train),
             }
             return state, row
@@ -149,19 +156,30 @@ def make_chunk_fn(resolved: ResolvedRun, num_periods: int):
         return jax.lax.scan(period, state, None, length=num_periods)
 
     # the states are donated: a chunk updates them in place (the caller keeps only the result)
-    return jax.jit(jax.vmap(one_seed, in_axes=(0, 0, None, None)), donate_argnums=0)
+    return jax.jit(jax.vmap(one_seed, in_axes=(0, 0, None, None, None)), donate_argnums=0)
 
 
 def make_init_fn(resolved: ResolvedRun):
-    """A jitted fn(init_keys [S], attack, defenses) -> every seed's initial state [S, ...]."""
-    env, learner, cfg = resolved.env, resolved.learner, resolved.learner_config
-    init = jax.vmap(lambda k, a, d: learner.init(k, env, cfg, a, d), in_axes=(0, None, None))
-    return jax.jit(init)
+    """A jitted fn(init_keys [S], attack, defenses, env numbers) -> every seed's initial
+    state [S, ...]."""
+    learner, cfg = resolved.learner, resolved.learner_config
+
+    def init(key, attack, defenses, numbers):
+        env = with_traced(resolved.env, numbers)
+        return learner.init(key, env, cfg, attack, defenses)
+
+    return jax.jit(jax.vmap(init, in_axes=(0, None, None, None)))
+
+
+def program_args(resolved: ResolvedRun) -> tuple:
+    """What a run passes its compiled init and chunk besides keys and states: (attack,
+    defenses, env numbers)."""
+    return resolved.attack, resolved.defenses, programs.env_numbers(resolved.env)
 
 
 def init_states(resolved: ResolvedRun, init_keys: jax.Array):
     """Every seed's initial learner state [S, ...]."""
-    return make_init_fn(resolved)(init_keys, resolved.attack, resolved.defenses)
+    return make_init_fn(resolved)(init_keys, *program_args(resolved))
 
 
 @dataclasses.dataclass
@@ -366,7 +384,8 @@ def _start(
     t0 = time.perf_counter()
     key, entry = cache.entry(resolved, periods, padded, sharding)
     fresh = entry[1] is None
-    states = entry[0](init_keys, resolved.attack, resolved.defenses)
+    args = program_args(resolved)
+    states = entry[0](init_keys, *args)
 
     done = 0
     saved = store.load_checkpoint(run_dir)
@@ -398,9 +417,7 @@ def _start(
         states, eval_roots = jax.device_put(jax.device_get((states, eval_roots)), sharding)
 
     if fresh:
-        lowered = make_chunk_fn(resolved, periods).lower(
-            states, eval_roots, resolved.attack, resolved.defenses
-        )
+        lowered = make_chunk_fn(resolved, periods).lower(states, eval_roots, *args)
         entry[1] = lowered.compile()
     compile_s = time.perf_counter() - t0
     if fresh:
@@ -467,7 +484,7 @@ def train(
         program = programs.with_attack(
             resolved, programs.shared_attack(resolved.attack, strategies)
         )
-    attack, defenses = program.attack, program.defenses
+    args = program_args(program)
     cache = cache if cache is not None else ProgramCache()
 
     trackers = tracking.Trackers(log, run_dir, seeds)
@@ -486,7 +503,7 @@ def train(
             t_chunk = time.perf_counter()
             calls = []
             for _ in range(per_chunk // per_call):  # queued: the device runs them back to back
-                states, call_metrics = chunk_fn(states, eval_roots, attack, defenses)
+                states, call_metrics = chunk_fn(states, eval_roots, *args)
                 calls.append(call_metrics)
             for i, call_metrics in enumerate(calls[:-1] if progress else ()):
                 success = np.asarray(call_metrics["eval"]["success"])[: run.seeds, -1]
