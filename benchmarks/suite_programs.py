@@ -13,8 +13,8 @@ of each.
 --verify lowers every job's chunk as the sweep would run it (the group's
 `Strategies` form where the group mixes strategy attacks) and checks that the
 jobs of a group lower to one program text and different groups to different
-ones. --compile compiles one job per group and prints each compile time (the
-persistent cache is off for it).
+ones. --compile compiles one job per group and prints each compile time and the
+init and trace+lower time before it (the persistent cache is off for it).
 """
 
 from __future__ import annotations
@@ -43,8 +43,11 @@ def main() -> None:
         timings(args.timings)
         return
 
+    from pimbot import jax_setup
     from pimbot.experiment import presets, programs, runner
     from pimbot.experiment.config import resolve
+
+    jax_setup.unroll_cpu_threefry()  # the programs `pimbot train` and the sweep compile
     from pimbot.experiment.jobs import JobOptions, train_strategies
     from pimbot.experiment.sweep import groups
 
@@ -75,7 +78,8 @@ def main() -> None:
             f"{periods}×{r.eval_period} it/call, {seeds} seeds"
         )
 
-    compile_s = []
+    compile_s: list[float] = []
+    before_s: list[float] = []  # init + trace + lower of each group's first job
     texts: dict[str, str] = {}
     for number, task in enumerate(tasks):
         strategies = train_strategies([j.spec for j in task]) if len(task) > 1 else None
@@ -91,12 +95,15 @@ def main() -> None:
                 r = programs.with_attack(r, r.attack.program_form())
                 if strategies and programs.shareable(r.attack):
                     r = programs.with_attack(r, programs.shared_attack(r.attack, strategies))
-                t0 = time.perf_counter()
-                lowered = lower(runner, r, *shape[job.name])
-                lower_s = time.perf_counter() - t0
+                lowered, init_s, lower_s = lower(runner, r, *shape[job.name])
                 digest = hashlib.sha256(lowered.as_text().encode()).hexdigest()[:16]
                 texts[job.name] = digest
-                line = f"     {job.name}: program text {digest}, traced+lowered in {lower_s:.1f} s"
+                line = (
+                    f"     {job.name}: program text {digest}, init (compiled and run) "
+                    f"{init_s:.1f} s, traced+lowered in {lower_s:.1f} s"
+                )
+                if job is task[0]:
+                    before_s.append(init_s + lower_s)
                 if args.compile and job is task[0]:
                     t0 = time.perf_counter()
                     lowered.compile()
@@ -113,7 +120,9 @@ def main() -> None:
     if compile_s:
         print(
             f"\ncompile (one per group, persistent cache off): {len(compile_s)} programs, "
-            f"sum {sum(compile_s):.0f} s, mean {sum(compile_s) / len(compile_s):.1f} s"
+            f"sum {sum(compile_s):.0f} s, mean {sum(compile_s) / len(compile_s):.1f} s; "
+            f"before it (init compiled and run, chunk traced and lowered) sum "
+            f"{sum(before_s):.0f} s, mean {sum(before_s) / len(before_s):.1f} s"
         )
     print("\nwhat tells the groups apart (distinct values over the groups):")
     first = [resolved[t[0].name] for t in tasks]
@@ -191,13 +200,18 @@ def chunk_seconds(rows: list[dict]) -> float:
 
 
 def lower(runner, resolved, periods: int, seeds: int):
+    """(the lowered chunk, seconds to compile and run the init, seconds to trace and
+    lower the chunk)."""
     import jax
 
     keys = runner.seed_keys(resolved.run.first_seed, seeds)
     args = runner.program_args(resolved)
-    states = runner.make_init_fn(resolved)(keys, *args)
+    t0 = time.perf_counter()
+    states = jax.block_until_ready(runner.make_init_fn(resolved)(keys, *args))
+    t1 = time.perf_counter()
     roots = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
-    return runner.make_chunk_fn(resolved, periods).lower(states, roots, *args)
+    lowered = runner.make_chunk_fn(resolved, periods).lower(states, roots, *args)
+    return lowered, t1 - t0, time.perf_counter() - t1
 
 
 if __name__ == "__main__":
