@@ -46,10 +46,10 @@ def main() -> None:
     from pimbot import jax_setup
     from pimbot.experiment import presets, programs, runner
     from pimbot.experiment.config import resolve
-
-    jax_setup.unroll_cpu_threefry()  # the programs `pimbot train` and the sweep compile
     from pimbot.experiment.jobs import JobOptions, train_strategies
     from pimbot.experiment.sweep import groups
+
+    jax_setup.unroll_cpu_threefry()  # the programs `pimbot train` and the sweep compile
 
     jobs = [j for j in presets.suite(quick=not args.full) if j.kind == "train"]
     options = JobOptions(chunk_iterations=args.chunk_iterations)

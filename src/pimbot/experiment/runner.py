@@ -101,18 +101,17 @@ def evals_per_chunk(num_evals: int, eval_period: int, target: int = TARGET_CHUNK
 
 
 def reduce_eval(
-    env, per_episode: dict[str, jax.Array], adversary: int, numbers: dict | None = None
+    env, per_episode: dict[str, jax.Array], adversary: int, numbers: dict
 ) -> dict[str, jax.Array]:
     """Means over evaluation episodes, the adversary's margins, and, where the optimum
     team return is known, the return ratio and the optimal rate (the optimum and the
-    threshold from `numbers`, the program's `programs.env_numbers`; None: from `env`)."""
+    threshold from `numbers`, the program's `programs.env_numbers`)."""
     out = {name: value.mean(axis=0) for name, value in per_episode.items()}
     others = jnp.arange(env.num_agents) != adversary
     for name in ("return_env", "return_total"):
         values = out[name]
         margin = values[adversary] - jnp.sum(values * others) / (env.num_agents - 1)
         out[f"adversary_margin_{name.removeprefix('return_')}"] = margin
-    numbers = programs.env_numbers(env) if numbers is None else numbers
     if "optimal_threshold" in numbers:
         out["return_ratio"] = out["team_return"] * numbers["optimal_team_return_reciprocal"]
         threshold = numbers["optimal_threshold"]
@@ -369,13 +368,19 @@ def _concat_periods(host: list) -> Any:
 
 
 def _start(
-    resolved: ResolvedRun, run_dir: Path, periods: int, cache: ProgramCache, rows_ahead: int
+    resolved: ResolvedRun,
+    args: tuple,
+    run_dir: Path,
+    periods: int,
+    cache: ProgramCache,
+    rows_ahead: int,
 ):
     """The seeds' states (initial or from the checkpoint), their evaluation keys, the
-    iterations done, and the compiled call of `periods` evaluation periods with its
-    compile time (0 when this process had compiled the program already). Metric rows
-    more than `rows_ahead` iterations (one chunk) past the checkpoint mean the
-    checkpoint was deleted or replaced by an older one: refused."""
+    iterations done, and the compiled call of `periods` evaluation periods (given
+    `args`, `program_args(resolved)`) with its compile time (0 when this process had
+    compiled the program already). Metric rows more than `rows_ahead` iterations (one
+    chunk) past the checkpoint mean the checkpoint was deleted or replaced by an older
+    one: refused."""
     run = resolved.run
     sharding, padded = seed_sharding(run.seeds)
     keys = seed_keys(run.first_seed, padded)
@@ -384,7 +389,6 @@ def _start(
     t0 = time.perf_counter()
     key, entry = cache.entry(resolved, periods, padded, sharding)
     fresh = entry[1] is None
-    args = program_args(resolved)
     states = entry[0](init_keys, *args)
 
     done = 0
@@ -494,7 +498,7 @@ def train(
     try:
         with CompileNotice(title, enabled=progress):  # init and chunk compile: 10-20 s
             states, eval_roots, done, chunk_fn, compile_s = _start(
-                program, run_dir, per_call, cache, rows_ahead=per_chunk * period
+                program, args, run_dir, per_call, cache, rows_ahead=per_chunk * period
             )
         trackers.catch_up(done)
         bar = Progress(title, run.iterations, done, enabled=progress)
