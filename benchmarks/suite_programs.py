@@ -15,6 +15,16 @@ of each.
 jobs of a group lower to one program text and different groups to different
 ones. --compile compiles one job per group and prints each compile time and the
 init and trace+lower time before it (the persistent cache is off for it).
+--train-time (implies --compile) also calls each group's compiled chunk and prints
+its time per call and the group's training time (calls its jobs need × that), and
+at the end the suite's floor on two workers: (init, lowering, compile and training
+of every group) / 2, without the profile and robot jobs and process start-up. Pin
+it to one core (`taskset -c 0`), as each of the sweep's two workers has one.
+--flops counts each group's flops per call (`throughput.jaxpr_flops`: scan bodies
+times their length, a `cond` as its cheapest branch) and prints the suite's
+training flops and the time they would take at the fp32 AVX2 peak of both cores
+(`throughput.core_peak`): a floor no implementation of these programs on this
+machine gets under.
 """
 
 from __future__ import annotations
@@ -36,9 +46,14 @@ def main() -> None:
     parser.add_argument("--verify", action="store_true", help="lower every job and compare")
     parser.add_argument("--compile", action="store_true", help="compile one job per group")
     parser.add_argument(
+        "--train-time", action="store_true", help="also time each group's chunk (see above)"
+    )
+    parser.add_argument("--flops", action="store_true", help="count each group's flops")
+    parser.add_argument(
         "--timings", metavar="DIR", help="instead: where a finished suite directory's time went"
     )
     args = parser.parse_args()
+    args.compile = args.compile or args.train_time
     if args.timings:
         timings(args.timings)
         return
@@ -80,6 +95,8 @@ def main() -> None:
 
     compile_s: list[float] = []
     before_s: list[float] = []  # init + trace + lower of each group's first job
+    train_s: list[float] = []  # each group's training: its jobs' calls × one call's time
+    flops: list[float] = []  # each group's training flops: its jobs' calls × one call's
     texts: dict[str, str] = {}
     for number, task in enumerate(tasks):
         strategies = train_strategies([j.spec for j in task]) if len(task) > 1 else None
@@ -89,13 +106,13 @@ def main() -> None:
         print(f"{head}: {describe(task[0])}")
         print(f"     attacks: {', '.join(kinds)}")
         print(f"     jobs: {', '.join(j.name for j in task)}")
-        if args.verify or args.compile:
+        if args.verify or args.compile or args.flops:
             for job in task if args.verify else task[:1]:
                 r = resolved[job.name]
                 r = programs.with_attack(r, r.attack.program_form())
                 if strategies and programs.shareable(r.attack):
                     r = programs.with_attack(r, programs.shared_attack(r.attack, strategies))
-                lowered, init_s, lower_s = lower(runner, r, *shape[job.name])
+                lowered, init_s, lower_s, call_args = lower(runner, r, *shape[job.name])
                 digest = hashlib.sha256(lowered.as_text().encode()).hexdigest()[:16]
                 texts[job.name] = digest
                 line = (
@@ -104,11 +121,21 @@ def main() -> None:
                 )
                 if job is task[0]:
                     before_s.append(init_s + lower_s)
+                periods = shape[job.name][0]
+                calls = sum(-(-j.spec.iterations // (periods * r.eval_period)) for j in task)
+                if args.flops and job is task[0]:
+                    per_call = chunk_flops(runner, r, periods, call_args)
+                    flops.append(calls * per_call)
+                    line += f", {per_call / 1e9:.1f} GFLOP a call"
                 if args.compile and job is task[0]:
                     t0 = time.perf_counter()
-                    lowered.compile()
+                    compiled = lowered.compile()
                     compile_s.append(time.perf_counter() - t0)
                     line += f", compiled in {compile_s[-1]:.1f} s"
+                    if args.train_time:
+                        call = call_seconds(compiled, call_args)
+                        train_s.append(calls * call)
+                        line += f"; a call {call:.2f} s, {calls} calls: {train_s[-1]:.0f} s"
                 print(line, flush=True)
     if args.verify:
         by_task = [{texts[j.name] for j in task} for task in tasks]
@@ -124,6 +151,24 @@ def main() -> None:
             f"before it (init compiled and run, chunk traced and lowered) sum "
             f"{sum(before_s):.0f} s, mean {sum(before_s) / len(before_s):.1f} s"
         )
+    if train_s:
+        work = sum(before_s) + sum(compile_s) + sum(train_s)
+        print(
+            f"training (each group's calls × its measured call): sum {sum(train_s):.0f} s; "
+            f"with init, lowering and compile {work:.0f} s of one core: on two workers at "
+            f"least {work / 2 / 60:.1f} min (profile and robot jobs and start-up not counted)"
+        )
+    if flops:
+        from throughput import core_peak
+
+        peak, peak_desc = core_peak()
+        line = f"training flops (each group's calls × a call's): {sum(flops) / 1e12:.1f} TFLOP"
+        if peak:
+            line += (
+                f"; at the fp32 peak of two cores ({peak_desc} each) "
+                f"{sum(flops) / (2 * peak) / 60:.1f} min"
+            )
+        print(line)
     print("\nwhat tells the groups apart (distinct values over the groups):")
     first = [resolved[t[0].name] for t in tasks]
     fields = {
@@ -199,9 +244,35 @@ def chunk_seconds(rows: list[dict]) -> float:
     return seconds
 
 
+def chunk_flops(runner, resolved, periods: int, call_args) -> float:
+    """Flops of one call of the chunk (matmuls 2·M·N·K, one per element otherwise; a
+    `cond` as its cheapest branch: a lower bound where a step runs only when due)."""
+    import jax
+    from throughput import jaxpr_flops
+
+    states, roots, args = call_args
+    closed = jax.make_jaxpr(runner.make_chunk_fn(resolved, periods))(states, roots, *args)
+    return sum(jaxpr_flops(closed.jaxpr, branch=min))
+
+
+def call_seconds(compiled, call_args) -> float:
+    """Seconds of one call of the compiled chunk: the faster of two, or the first alone
+    where it took over 10 s (the states are donated: each call takes the last one's)."""
+    import jax
+
+    states, roots, args = call_args
+    times = []
+    while not times or (len(times) < 2 and times[0] < 10.0):
+        t0 = time.perf_counter()
+        states, metrics = compiled(states, roots, *args)
+        jax.block_until_ready((states, metrics))
+        times.append(time.perf_counter() - t0)
+    return min(times)
+
+
 def lower(runner, resolved, periods: int, seeds: int):
     """(the lowered chunk, seconds to compile and run the init, seconds to trace and
-    lower the chunk)."""
+    lower the chunk, (states, evaluation roots, program args) to call it with)."""
     import jax
 
     keys = runner.seed_keys(resolved.run.first_seed, seeds)
@@ -211,7 +282,7 @@ def lower(runner, resolved, periods: int, seeds: int):
     t1 = time.perf_counter()
     roots = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
     lowered = runner.make_chunk_fn(resolved, periods).lower(states, roots, *args)
-    return lowered, t1 - t0, time.perf_counter() - t1
+    return lowered, t1 - t0, time.perf_counter() - t1, (states, roots, args)
 
 
 if __name__ == "__main__":

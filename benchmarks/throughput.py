@@ -395,8 +395,9 @@ ELEMENTWISE = {
 cost analysis counts them; data movement (broadcast, reshape, slices, gathers) is free."""
 
 
-def jaxpr_flops(jaxpr) -> tuple[float, float]:
-    """(matmul flops, other arithmetic flops) of a jaxpr, scan bodies times their length.
+def jaxpr_flops(jaxpr, branch=max) -> tuple[float, float]:
+    """(matmul flops, other arithmetic flops) of a jaxpr, scan bodies times their length, a
+    `cond` as its `branch` (max: the costliest branch; min: a lower bound).
 
     XLA's own cost analysis counts a loop body once; LIO's rollouts are `lax.scan`s over
     the episode's steps, so the count is taken on the jaxpr instead (same conventions:
@@ -413,15 +414,15 @@ def jaxpr_flops(jaxpr) -> tuple[float, float]:
             b for v in params.values() if isinstance(v, tuple) for b in v if hasattr(b, "jaxpr")
         ]
         if name == "scan":
-            d, o = jaxpr_flops(params["jaxpr"].jaxpr)
+            d, o = jaxpr_flops(params["jaxpr"].jaxpr, branch)
             dots, other = dots + params["length"] * d, other + params["length"] * o
         elif name == "cond":
-            costs = [jaxpr_flops(b.jaxpr) for b in params["branches"]]
-            d, o = max(costs, key=sum)
+            costs = [jaxpr_flops(b.jaxpr, branch) for b in params["branches"]]
+            d, o = branch(costs, key=sum)
             dots, other = dots + d, other + o
         elif subs:
             for sub in subs:
-                d, o = jaxpr_flops(getattr(sub, "jaxpr", sub))
+                d, o = jaxpr_flops(getattr(sub, "jaxpr", sub), branch)
                 dots, other = dots + d, other + o
         elif name == "dot_general":
             (contract, _), _ = params["dimension_numbers"]
