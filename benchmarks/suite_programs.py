@@ -23,8 +23,9 @@ it to one core (`taskset -c 0`), as each of the sweep's two workers has one.
 --flops counts each group's flops per call (`throughput.jaxpr_flops`: scan bodies
 times their length, a `cond` as its cheapest branch) and prints the suite's
 training flops and the time they would take at the fp32 AVX2 peak of both cores
-(`throughput.core_peak`): a floor no implementation of these programs on this
-machine gets under.
+(`throughput.core_peak`, 32 flops per cycle): a floor no implementation of these
+programs gets under on an AVX2 machine (on an AVX-512 one with two FMA units, half
+of it).
 """
 
 from __future__ import annotations
