@@ -59,6 +59,8 @@ def main() -> None:
         timings(args.timings)
         return
 
+    from throughput import core_peak, jaxpr_flops
+
     from pimbot import jax_setup
     from pimbot.experiment import presets, programs, runner
     from pimbot.experiment.config import resolve
@@ -113,22 +115,24 @@ def main() -> None:
                 r = programs.with_attack(r, r.attack.program_form())
                 if strategies and programs.shareable(r.attack):
                     r = programs.with_attack(r, programs.shared_attack(r.attack, strategies))
-                lowered, init_s, lower_s, call_args = lower(runner, r, *shape[job.name])
+                lowered, jaxpr, init_s, lower_s, call_args = lower(runner, r, *shape[job.name])
                 digest = hashlib.sha256(lowered.as_text().encode()).hexdigest()[:16]
                 texts[job.name] = digest
                 line = (
                     f"     {job.name}: program text {digest}, init (compiled and run) "
                     f"{init_s:.1f} s, traced+lowered in {lower_s:.1f} s"
                 )
-                if job is task[0]:
-                    before_s.append(init_s + lower_s)
+                if job is not task[0]:  # --verify: the others are only lowered and compared
+                    print(line, flush=True)
+                    continue
+                before_s.append(init_s + lower_s)
                 periods = shape[job.name][0]
                 calls = sum(-(-j.spec.iterations // (periods * r.eval_period)) for j in task)
-                if args.flops and job is task[0]:
-                    per_call = chunk_flops(runner, r, periods, call_args)
+                if args.flops:
+                    per_call = sum(jaxpr_flops(jaxpr.jaxpr, branch=min))
                     flops.append(calls * per_call)
                     line += f", {per_call / 1e9:.1f} GFLOP a call"
-                if args.compile and job is task[0]:
+                if args.compile:
                     t0 = time.perf_counter()
                     compiled = lowered.compile()
                     compile_s.append(time.perf_counter() - t0)
@@ -160,8 +164,6 @@ def main() -> None:
             f"least {work / 2 / 60:.1f} min (profile and robot jobs and start-up not counted)"
         )
     if flops:
-        from throughput import core_peak
-
         peak, peak_desc = core_peak()
         line = f"training flops (each group's calls × a call's): {sum(flops) / 1e12:.1f} TFLOP"
         if peak:
@@ -245,17 +247,6 @@ def chunk_seconds(rows: list[dict]) -> float:
     return seconds
 
 
-def chunk_flops(runner, resolved, periods: int, call_args) -> float:
-    """Flops of one call of the chunk (matmuls 2·M·N·K, one per element otherwise; a
-    `cond` as its cheapest branch: a lower bound where a step runs only when due)."""
-    import jax
-    from throughput import jaxpr_flops
-
-    states, roots, args = call_args
-    closed = jax.make_jaxpr(runner.make_chunk_fn(resolved, periods))(states, roots, *args)
-    return sum(jaxpr_flops(closed.jaxpr, branch=min))
-
-
 def call_seconds(compiled, call_args) -> float:
     """Seconds of one call of the compiled chunk: the faster of two, or the first alone
     where it took over 10 s (the states are donated: each call takes the last one's)."""
@@ -272,8 +263,8 @@ def call_seconds(compiled, call_args) -> float:
 
 
 def lower(runner, resolved, periods: int, seeds: int):
-    """(the lowered chunk, seconds to compile and run the init, seconds to trace and
-    lower the chunk, (states, evaluation roots, program args) to call it with)."""
+    """(the lowered chunk, its traced jaxpr, seconds to compile and run the init, seconds
+    to trace and lower the chunk, (states, evaluation roots, program args) to call it with)."""
     import jax
 
     keys = runner.seed_keys(resolved.run.first_seed, seeds)
@@ -282,8 +273,9 @@ def lower(runner, resolved, periods: int, seeds: int):
     states = jax.block_until_ready(runner.make_init_fn(resolved)(keys, *args))
     t1 = time.perf_counter()
     roots = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
-    lowered = runner.make_chunk_fn(resolved, periods).lower(states, roots, *args)
-    return lowered, t1 - t0, time.perf_counter() - t1, (states, roots, args)
+    traced = runner.make_chunk_fn(resolved, periods).trace(states, roots, *args)
+    lowered = traced.lower()
+    return lowered, traced.jaxpr, t1 - t0, time.perf_counter() - t1, (states, roots, args)
 
 
 if __name__ == "__main__":
