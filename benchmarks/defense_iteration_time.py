@@ -25,13 +25,13 @@ import numpy as np  # noqa: E402
 
 from pimbot import envs  # noqa: E402
 from pimbot.analysis.runs import env_label  # noqa: E402
-from pimbot.experiment import presets  # noqa: E402
-from pimbot.experiment.config import (  # noqa: E402
+from pimbot.suites import presets  # noqa: E402
+from pimbot.training.config import (  # noqa: E402
     RunConfig,
     env_parameters,  # noqa: E402
     resolve,
 )
-from pimbot.experiment.runner import init_states  # noqa: E402
+from pimbot.training.runner import init_states  # noqa: E402
 
 
 def timed_update(run: RunConfig, iterations: int):

@@ -36,9 +36,9 @@ jax_setup.use_all_cpu_cores()
 
 import jax  # noqa: E402
 
-from pimbot.experiment.config import RunConfig, resolve  # noqa: E402
-from pimbot.experiment.presets import SPEC_BALANCE  # noqa: E402
-from pimbot.experiment.runner import (  # noqa: E402
+from pimbot.suites.presets import SPEC_BALANCE  # noqa: E402
+from pimbot.training.config import RunConfig, resolve  # noqa: E402
+from pimbot.training.runner import (  # noqa: E402
     init_states,
     make_chunk_fn,
     program_args,

@@ -6,7 +6,7 @@ For every training job of `pimbot reproduce [--quick]` it prints the job's
 program key (`programs.program_key`: what the compiled chunk depends on, the
 attack's and defenses' numbers left out) and its group key
 (`programs.share_key`: the same after folding the strategy attacks into one
-`programs.Strategies` program, which is how `pimbot reproduce` now plans its
+`strategy_union.Strategies` program, which is how `pimbot reproduce` now plans its
 tasks). Then the groups, what tells them apart, and the relative training cost
 of each.
 
@@ -62,10 +62,12 @@ def main() -> None:
     from throughput import core_peak, jaxpr_flops
 
     from pimbot import jax_setup
-    from pimbot.experiment import presets, programs, runner
-    from pimbot.experiment.config import resolve
-    from pimbot.experiment.jobs import JobOptions, train_strategies
-    from pimbot.experiment.sweep import groups
+    from pimbot.attacks import strategy_union
+    from pimbot.suites import presets
+    from pimbot.suites.jobs import JobOptions, train_strategies
+    from pimbot.suites.sweep import groups
+    from pimbot.training import programs, runner
+    from pimbot.training.config import resolve
 
     jax_setup.unroll_cpu_threefry()  # the programs `pimbot train` and the sweep compile
 
@@ -113,8 +115,8 @@ def main() -> None:
             for job in task if args.verify else task[:1]:
                 r = resolved[job.name]
                 r = programs.with_attack(r, r.attack.program_form())
-                if strategies and programs.shareable(r.attack):
-                    r = programs.with_attack(r, programs.shared_attack(r.attack, strategies))
+                if strategies and strategy_union.shareable(r.attack):
+                    r = programs.with_attack(r, strategy_union.shared_attack(r.attack, strategies))
                 lowered, jaxpr, init_s, lower_s, call_args = lower(runner, r, *shape[job.name])
                 digest = hashlib.sha256(lowered.as_text().encode()).hexdigest()[:16]
                 texts[job.name] = digest
@@ -179,7 +181,9 @@ def main() -> None:
         "learner config": {repr(r.learner_config) for r in first},
         "env and its parameters": {(r.run.env_id, r.run.env_params) for r in first},
         "attack structure (strategies folded; learning attacks by mode)": {
-            "strategies" if programs.shareable(r.attack) else programs.member_kind(r.attack)
+            "strategies"
+            if strategy_union.shareable(r.attack)
+            else strategy_union.member_kind(r.attack)
             for r in first
         },
         "defense sets": {"+".join(d.name for d in r.defenses) for r in first},
@@ -227,7 +231,7 @@ def timings(suite_dir: str) -> None:
     for kind, (n, wall, comp, train, other) in sums.items():
         print(f"  {kind:<11} {n:>5} {wall:>8.0f} {comp:>8.0f} {train:>8.0f} {other:>8.0f}")
     if programs:
-        from pimbot.experiment.sweep import programs_line
+        from pimbot.suites.sweep import programs_line
 
         print("  " + programs_line(programs))
 

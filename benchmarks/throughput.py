@@ -3,7 +3,7 @@
     python benchmarks/throughput.py [--seeds 10 100 1000] [--configs er21 er43]
         [--iterations N] [--repeats 3] [--learner lio] [--json OUT]
 
-What runs is the real training path of `pimbot.experiment.runner.train`, not a
+What runs is the real training path of `pimbot.training.runner.train`, not a
 re-implementation: for every case (Escape Room config × number of seeds S) the
 learner states are built exactly as the runner builds them — per-seed keys from
 `seed_keys` (padded to a multiple of the device count), `fold_in(key, 0)` for
@@ -130,7 +130,7 @@ def peak_rss_bytes() -> int:
 
 def run_config(config: str, num_seeds: int, args: argparse.Namespace):
     """The `RunConfig` of one case; its `iterations` are those of one timed call."""
-    from pimbot.experiment.config import RunConfig
+    from pimbot.training.config import RunConfig
 
     n, m = parse_config(config)
     run = RunConfig(
@@ -163,8 +163,8 @@ def run_case(config: str, num_seeds: int, args: argparse.Namespace) -> dict[str,
     if not args.rolled_threefry:
         jax_setup.unroll_cpu_threefry()  # as `pimbot train` does (enable_compilation_cache)
 
-    from pimbot.experiment import runner
-    from pimbot.experiment.config import resolve
+    from pimbot.training import runner
+    from pimbot.training.config import resolve
 
     run = run_config(config, num_seeds, args)
     iterations = run.iterations
@@ -461,7 +461,7 @@ def update_case(config: str, attack_name: str | None, seeds: int, iterations: in
     no evaluation episodes (identical with and without the attack)."""
     import jax
 
-    from pimbot.experiment.config import RunConfig, resolve
+    from pimbot.training.config import RunConfig, resolve
 
     n, m = parse_config(config)
     run = RunConfig(
@@ -687,7 +687,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.lio_report:
         return lio_report(args)
     from pimbot.envs.core import InvalidParameter
-    from pimbot.experiment.config import resolve
+    from pimbot.training.config import resolve
 
     try:  # fail on bad options before running anything
         for config in args.configs:

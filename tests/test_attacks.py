@@ -13,8 +13,8 @@ from hypothesis import strategies as st
 from pimbot import attacks, envs, learners
 from pimbot.attacks import admo
 from pimbot.contracts.attack import Decision
+from pimbot.contracts.rollout import received, rollout
 from pimbot.learners import lio, pg
-from pimbot.rollout import received, rollout
 
 ENV = envs.make("escape_room-v0", n_agents=3, min_at_lever=1)
 CFG = learners.default_config("lio", "escape_room-v0")
@@ -418,7 +418,7 @@ def test_admo_code_takes_the_ordinary_incentive_step_then_the_scheduled_extra_on
 
 def test_admo_code_needs_an_incentive_channel_or_an_epoch_schedule():
     """LIO (incentive steps) and the Reciprocator (PPO epochs) run it; PG has neither."""
-    from pimbot.experiment.config import RunConfig, resolve
+    from pimbot.training.config import RunConfig, resolve
 
     with pytest.raises(
         envs.InvalidParameter, match="admo_code acts at the hook point.s. update_schedule"

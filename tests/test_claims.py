@@ -348,7 +348,7 @@ def test_c7_er_shortfall_classified_by_the_transfer_counterfactual(tmp_path):
 
 
 def test_claims_table_at_the_quick_budget():
-    from pimbot.experiment import presets
+    from pimbot.suites import presets
 
     jobs = [
         {"name": j.name, "claims": list(j.claims), "status": "finished"}

@@ -5,7 +5,7 @@ import json
 import pytest
 
 from pimbot import cli
-from pimbot.experiment import store
+from pimbot.training import store
 
 BAD = [
     (["train", "nope-v0", "--out", "{d}"], "env_id: unknown value 'nope-v0'; allowed: escape"),

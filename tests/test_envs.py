@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from pimbot import envs
+from pimbot.contracts.rollout import episode_metrics, rollout
 from pimbot.envs import (
     EscapeRoom,
     EscapeRoomWithTransfer,
@@ -22,7 +23,6 @@ from pimbot.envs import (
 from pimbot.envs.escape_room import DOOR, LEVER, START
 from pimbot.envs.matrix_games import COOPERATE, DEFECT, HARE, IPD_PAYOFF, STAG
 from pimbot.envs.stag_hunt import DOWN, LEFT, RIGHT, STAY, UP
-from pimbot.rollout import episode_metrics, rollout
 
 KEY = jax.random.key(0)
 
@@ -499,7 +499,7 @@ STAG_HUNT_LIO_CONFIG = {
 
 @pytest.mark.parametrize("learner", ["lio", "pg"])
 def test_stag_hunt_learners_default_to_the_original_stag_hunt_config(learner):
-    from pimbot.experiment.config import RunConfig, resolve
+    from pimbot.training.config import RunConfig, resolve
 
     resolved = resolve(RunConfig(env_id="stag_hunt-v0", learner=learner))
     config = dataclasses.asdict(resolved.learner_config)

@@ -24,8 +24,8 @@ import pytest
 from pimbot import attacks, cli, defenses, envs, learners, plugins
 from pimbot.contracts.attack import Outcome
 from pimbot.contracts.defense import IncentiveContext
-from pimbot.experiment import store
-from pimbot.rollout import rollout
+from pimbot.contracts.rollout import rollout
+from pimbot.training import store
 
 ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "extending.md"
@@ -115,7 +115,7 @@ class Resolved(Exception):
 
 def test_documented_commands_run_up_to_training(tmp_path, monkeypatch, capsys):
     """Every `pimbot` line of the docs parses; listings run; train commands resolve."""
-    from pimbot.experiment import runner
+    from pimbot.training import runner
 
     def stop(run, *args, **kwargs):
         raise Resolved(run)

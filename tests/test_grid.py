@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 
 from pimbot import cli
-from pimbot.experiment import grid, presets, sweep
-from pimbot.experiment.config import RunConfig
+from pimbot.suites import grid, presets, sweep
+from pimbot.training.config import RunConfig
 
 DATA = Path(__file__).parent / "data"
 PLUGIN_FILE = DATA / "coordination_plugin.py"

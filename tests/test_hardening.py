@@ -17,7 +17,7 @@ from flax import struct
 
 from pimbot import cli
 from pimbot.attacks import Attack, register
-from pimbot.experiment import store
+from pimbot.training import store
 
 TINY = ["--seeds", "2", "--iterations", "200", "--eval-period", "100", "--eval-episodes", "2"]
 TRAIN = ["train", "ipd-v0", *TINY, "--chunk-iterations", "100", "--quiet"]  # 2 checkpoints

@@ -29,8 +29,8 @@ from jaxmarl.environments.multi_agent_env import MultiAgentEnv
 
 from pimbot import envs, plugins
 from pimbot.envs.core import InvalidParameter
-from pimbot.experiment import runner, store
-from pimbot.experiment.config import RunConfig
+from pimbot.training import runner, store
+from pimbot.training.config import RunConfig
 
 MODULE = "pimbot.envs.jaxmarl"
 JAXMARL_IDS = ["jaxmarl_coin_game-v0", "jaxmarl_simple_spread-v0"]

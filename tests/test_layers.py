@@ -1,14 +1,17 @@
-"""The package's layers import downward only, and every module imports on its own.
+"""The package's folders are its layers: each imports downward only, the import graph
+between folders has no cycle, and every module imports on its own.
 
-Layers, lowest first (a module may import its own layer and those below):
-  0 envs, nets, jax_setup          the pure environments and networks
-  1 rollout, contracts             the episode and the hook protocols plugins implement
-  2 attacks, defenses, learners    the built-in plugins (registered like a user's)
-  3 experiment core, plugins       configs, runs, training, summaries, plugin loading
-  4 profiling, robot               applications of trained runs
-  5 suites                         job kinds, grids, the paper preset, the sweep engine
-  6 analysis                       reports from run directories
-  7 command line                   cli and the command modules of the packages
+Folders, lowest layer first (a module may import its own folder and lower layers):
+  0 pimbot (its own modules)     the ground floor: errors, statistics, jax setup, nets,
+                                 the plugin loader
+  1 envs                         the pure environments and their registry
+  2 contracts                    the episode (rollout) and the protocols plugins implement
+  3 attacks, defenses, learners  the built-in plugins (registered like a user's)
+  4 training                     configs, runs, the compiled training loop, run directories
+  5 profiling, robot             applications of trained runs
+  6 suites                       job kinds, grids, the paper's suite, the sweep engine
+  7 analysis                     reports from run directories
+  8 cli                          every command's command line
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ from __future__ import annotations
 import ast
 import os
 import sys
+from graphlib import CycleError, TopologicalSorter
 from pathlib import Path
 
 import pytest
@@ -23,34 +27,32 @@ import pytest
 SRC = Path(__file__).resolve().parents[1] / "src"
 PACKAGE = SRC / "pimbot"
 
-LAYERS = [  # (module prefix, layer); the longest matching prefix wins
-    ("pimbot", 0),
-    ("pimbot.envs", 0),
-    ("pimbot.nets", 0),
-    ("pimbot.jax_setup", 0),
-    ("pimbot.rollout", 1),
-    ("pimbot.contracts", 1),
-    ("pimbot.attacks", 2),
-    ("pimbot.defenses", 2),
-    ("pimbot.learners", 2),
-    ("pimbot.experiment", 3),
-    ("pimbot.plugins", 3),
-    ("pimbot.profiling", 4),
-    ("pimbot.robot", 4),
-    ("pimbot.experiment.jobs", 5),
-    ("pimbot.experiment.grid", 5),
-    ("pimbot.experiment.presets", 5),
-    ("pimbot.experiment.sweep", 5),
-    ("pimbot.analysis", 6),
-    ("pimbot.cli", 7),
-    ("pimbot.defenses.cli", 7),
-    ("pimbot.robot.cli", 7),
-]
+LAYERS = {  # folder -> layer; a module belongs to the top folder it sits in
+    "pimbot": 0,
+    "pimbot.envs": 1,
+    "pimbot.contracts": 2,
+    "pimbot.attacks": 3,
+    "pimbot.defenses": 3,
+    "pimbot.learners": 3,
+    "pimbot.training": 4,
+    "pimbot.profiling": 5,
+    "pimbot.robot": 5,
+    "pimbot.suites": 6,
+    "pimbot.analysis": 7,
+    "pimbot.cli": 8,
+}
+
+
+def folder(module: str) -> str:
+    """The top folder `module` sits in: `pimbot` for the package's own modules."""
+    parts = module.split(".")
+    if len(parts) == 1 or not (SRC / "pimbot" / parts[1]).is_dir():
+        return "pimbot"
+    return ".".join(parts[:2])
 
 
 def layer(module: str) -> int:
-    matches = [(p, n) for p, n in LAYERS if module == p or module.startswith(p + ".")]
-    return max(matches, key=lambda m: len(m[0]))[1]
+    return LAYERS[folder(module)]
 
 
 def modules() -> list[str]:
@@ -107,6 +109,34 @@ def third_party() -> list[str]:
     return sorted(n for n in names if n.split(".")[0] not in standard)
 
 
+def folder_graph() -> dict[str, set[str]]:
+    """folder -> the other folders its modules import (at the top or inside functions)."""
+    graph: dict[str, set[str]] = {name: set() for name in LAYERS}
+    for module in modules():
+        graph.setdefault(folder(module), set()).update(
+            folder(dep) for dep in imported(module) if folder(dep) != folder(module)
+        )
+    return graph
+
+
+def test_the_layer_table_names_exactly_the_folders():
+    folders = {"pimbot"} | {
+        f"pimbot.{path.name}" for path in PACKAGE.iterdir() if (path / "__init__.py").exists()
+    }
+    assert folders == set(LAYERS)
+
+
+def test_the_import_graph_between_folders_has_no_cycle():
+    graph = folder_graph()
+    for name in sorted(graph, key=lambda n: (LAYERS.get(n, -1), n)):
+        print(f"{name} -> {', '.join(sorted(graph[name])) or '(nothing)'}")
+    try:
+        order = list(TopologicalSorter(graph).static_order())
+    except CycleError as error:
+        pytest.fail(f"import cycle between folders: {' -> '.join(error.args[1])}")
+    assert set(order) == set(graph)
+
+
 def test_every_module_has_a_layer_and_no_import_goes_up():
     upward = [
         f"{module} (layer {layer(module)}) imports {dep} (layer {layer(dep)})"
@@ -120,7 +150,7 @@ def test_every_module_has_a_layer_and_no_import_goes_up():
 def test_contracts_import_no_plugin():
     for module in modules():
         if module.startswith("pimbot.contracts"):
-            plugins = [d for d in imported(module) if layer(d) >= 2]
+            plugins = [d for d in imported(module) if layer(d) > LAYERS["pimbot.contracts"]]
             assert not plugins, f"{module} imports {plugins}"
 
 

@@ -6,8 +6,8 @@ numbers come from `pimbot train` (see README and docs/results).
 
 import numpy as np
 
-from pimbot.experiment import runner, summary
-from pimbot.experiment.config import RunConfig
+from pimbot.training import runner, summary
+from pimbot.training.config import RunConfig
 
 
 def _final(run_dir, column):

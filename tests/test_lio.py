@@ -9,9 +9,9 @@ import optax
 import pytest
 
 from pimbot import envs, learners, nets
+from pimbot.contracts.rollout import discounted_returns, rollout
 from pimbot.envs.core import InvalidParameter
 from pimbot.learners import lio, pg
-from pimbot.rollout import discounted_returns, rollout
 
 ENV = envs.make("escape_room-v0", n_agents=3, min_at_lever=1)
 CFG = learners.default_config("lio", "escape_room-v0")

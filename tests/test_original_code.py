@@ -10,8 +10,8 @@ import pytest
 from pimbot import envs
 from pimbot.analysis import original_code
 from pimbot.analysis.runs import load_table
-from pimbot.experiment import store
-from pimbot.experiment.summary import summarize
+from pimbot.training import store
+from pimbot.training.summary import summarize
 
 CLEAN_ER21_10_RUNS = original_code.ROOT / "er_40k" / "er2_1_pure"
 

@@ -11,8 +11,8 @@ import pytest
 from pimbot import envs, learners, nets
 from pimbot.attacks import ADMO, Bypass, Reverse
 from pimbot.contracts.attack import NO_ATTACK, UpdateSchedule
+from pimbot.contracts.rollout import rollout
 from pimbot.envs.core import InvalidParameter
-from pimbot.experiment.config import RunConfig, resolve
 from pimbot.learners import (
     epoch_schedule,
     exact_voi,
@@ -21,7 +21,7 @@ from pimbot.learners import (
     reciprocator_nets,
     tabular,
 )
-from pimbot.rollout import rollout
+from pimbot.training.config import RunConfig, resolve
 
 IPD = envs.make("ipd-v0")
 COOP_ENVS, COOP_ITERATIONS, COOP_RATE = 256, 100, 0.85  # see the cooperation test

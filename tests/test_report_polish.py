@@ -18,7 +18,7 @@ import pytest
 
 from pimbot.analysis import document, plots, report, runs, verdicts
 from pimbot.analysis.document import Claim, Section
-from pimbot.experiment import sweep
+from pimbot.suites import sweep
 
 SEEDS = 2
 ITERATIONS = 300

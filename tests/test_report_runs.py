@@ -15,7 +15,8 @@ from pathlib import Path
 import pytest
 
 from pimbot.analysis import report, runs
-from pimbot.experiment import store, sweep
+from pimbot.suites import sweep
+from pimbot.training import store
 
 PLUGIN_ATTACK = "plugin_attack"
 PLUGIN_ENV = "crystal_maze-v1"
@@ -39,8 +40,8 @@ def _patch(run_dir: Path, attack=None, env_id=None, defense=None) -> None:
 
 @pytest.fixture(scope="module")
 def suite(tmp_path_factory) -> Path:
-    from pimbot.experiment.config import RunConfig
-    from pimbot.experiment.runner import train
+    from pimbot.training.config import RunConfig
+    from pimbot.training.runner import train
 
     root = tmp_path_factory.mktemp("suite")
     real = root / "_real"

@@ -17,8 +17,6 @@ import pytest
 
 from pimbot.cli import main
 from pimbot.envs.escape_room import EscapeRoom
-from pimbot.experiment.config import RunConfig
-from pimbot.experiment.runner import train
 from pimbot.robot import controller as ctl
 from pimbot.robot import episode as ep
 from pimbot.robot import evaluate, render, rosbag
@@ -32,6 +30,8 @@ from pimbot.robot.world import (
     build_world,
     sample_layout,
 )
+from pimbot.training.config import RunConfig
+from pimbot.training.runner import train
 
 LEVER, START, DOOR = 0, 1, 2
 

@@ -12,8 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pimbot.experiment import programs, runner, store
-from pimbot.experiment.config import RunConfig
+from pimbot.attacks import strategy_union
+from pimbot.training import programs, runner, store
+from pimbot.training.config import RunConfig
 
 SMALL = dict(
     env_id="escape_room-v0", learner="lio", iterations=200, eval_period=100, eval_episodes=4
@@ -94,7 +95,7 @@ def test_a_run_from_before_a_learner_field_existed_resumes_at_its_default(tmp_pa
     """A config.json whose identity lacks a learner hyperparameter a later pimbot added
     (here voi_minibatch_rows) is the same run while the run keeps that field at its
     default (the behaviour from before it existed), and a different run once it is set."""
-    from pimbot.experiment.config import resolve
+    from pimbot.training.config import resolve
 
     base = RunConfig(env_id="ipd-v0", learner="reciprocator", seeds=1, iterations=10)
     resolved = resolve(base)
@@ -173,7 +174,7 @@ def test_runs_differing_only_in_attack_or_defense_numbers_share_one_program(atta
     lowered for two configs that differ only in them is one and the same program."""
     import dataclasses
 
-    from pimbot.experiment.config import resolve
+    from pimbot.training.config import resolve
 
     base = RunConfig(**{**SMALL, "iterations": 20, "eval_period": 10, "seeds": 2})
 
@@ -207,7 +208,7 @@ def test_admo_modes_share_one_program_and_give_what_the_static_mode_gives():
 
     import jax
 
-    from pimbot.experiment.config import resolve
+    from pimbot.training.config import resolve
 
     base = RunConfig(**{**SMALL, "iterations": 20, "eval_period": 10, "seeds": 2})
     keys = runner.seed_keys(0, 2)
@@ -241,7 +242,7 @@ def test_escape_rooms_differing_only_in_m_share_one_program_and_keep_their_own_m
     ER(4, 2) gives."""
     import jax
 
-    from pimbot.experiment.config import resolve
+    from pimbot.training.config import resolve
 
     def er4(m: int):
         run = RunConfig(
@@ -287,17 +288,17 @@ def test_env_numbers_refuse_a_traced_field_that_is_not_a_number():
 
 
 def test_strategy_attacks_on_one_shared_program_give_their_own_results(tmp_path):
-    """Clean, fake incentive and bypass run on one `programs.Strategies` program (one
+    """Clean, fake incentive and bypass run on one `strategy_union.Strategies` program (one
     compile, the program kept in a ProgramCache) write what each writes on its own program:
     bitwise equal metrics and checkpoints."""
-    from pimbot.experiment.config import resolve
+    from pimbot.training.config import resolve
 
     runs = {
         name: RunConfig(**SMALL, seeds=2, attack=attack)
         for name, attack in (("clean", None), ("fake", "fake_incentive"), ("bypass", "bypass"))
     }
     attacks = [resolve(run).attack for run in runs.values()]
-    strategies = {programs.member_kind(a): a for a in attacks}
+    strategies = {strategy_union.member_kind(a): a for a in attacks}
     assert len(strategies) == 3
     keys = {programs.share_key(resolve(run), 1, 2) for run in runs.values()}
     assert len(keys) == 1

@@ -21,14 +21,15 @@ from pathlib import Path
 import psutil
 import pytest
 
-from pimbot.experiment import store, sweep
+from pimbot.suites import sweep
+from pimbot.training import store
 
 # The tiny suite, as code a subprocess can run too: three training jobs (two
 # programs share a shape), a one-second paired profile and a physics evaluation
 # that waits for the run it reads.
 SUITE_CODE = """
-from pimbot.experiment.config import RunConfig
-from pimbot.experiment.presets import Job, RobotEval
+from pimbot.training.config import RunConfig
+from pimbot.suites.presets import Job, RobotEval
 from pimbot.profiling.decision_loop import ProfileConfig
 
 TINY = dict(learner="lio", iterations=1000, eval_period=100, eval_episodes=2, seeds=2)
@@ -57,7 +58,7 @@ JOBS = [
 """
 OPTIONS = dict(workers=2, devices_per_job=1, chunk_iterations=200, progress=False)
 RUN_CODE = SUITE_CODE + (
-    "import sys\nfrom pimbot.experiment import sweep\n"
+    "import sys\nfrom pimbot.suites import sweep\n"
     f"sweep.run(JOBS, sys.argv[1], 'tiny', sweep.SweepOptions(**{OPTIONS!r}))\n"
 )
 # The same suite with training jobs long enough (100 000 iterations) that none can finish
@@ -105,8 +106,8 @@ def test_reference_sweep_writes_every_run_and_the_index(reference):
 def test_groups_put_jobs_on_one_program_together_and_keep_dependencies_apart():
     import dataclasses
 
-    from pimbot.experiment.config import RunConfig
-    from pimbot.experiment.jobs import Job, JobOptions
+    from pimbot.suites.jobs import Job, JobOptions
+    from pimbot.training.config import RunConfig
 
     er21 = dict(env_id="escape_room-v0", iterations=1000, eval_period=100, seeds=2)
     jobs = [
@@ -315,7 +316,7 @@ def _claims(jobs: dict, group: str) -> set:
 
 
 def test_quick_suite_keeps_every_setting_of_the_full_suite():
-    from pimbot.experiment import presets
+    from pimbot.suites import presets
 
     full = {j.name: j for j in presets.suite(quick=False)}
     quick = {j.name: j for j in presets.suite(quick=True)}

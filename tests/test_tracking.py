@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from pimbot import cli
-from pimbot.experiment import runner, store, tracking
+from pimbot.training import runner, store, tracking
 
 TINY = ["train", "ipd-v0", "--learner", "pg", "--seeds", "2", "--iterations", "40"]
 TINY += ["--eval-period", "20", "--quiet"]

@@ -40,7 +40,7 @@ from typing import Any
 from pimbot import envs, learners
 from pimbot.analysis import original_code
 from pimbot.analysis.runs import condition_label, env_label, natural_key
-from pimbot.experiment.config import RunConfig, env_parameters
+from pimbot.training.config import RunConfig, env_parameters
 
 GAMES = {"er": "escape_room-v0", "ipd": "ipd-v0"}
 """The original config's env.name -> pimbot env id."""

@@ -5,7 +5,7 @@
     .venv/bin/python benchmarks/original/time_pimbot.py reciprocator [--updates-per-chunk 4]
         [--chunks 3] [--preset original|defaults] [--hp NAME=VALUE ...]
 
-What runs is `pimbot.experiment.runner.train`, the function behind `pimbot train`
+What runs is `pimbot.training.runner.train`, the function behind `pimbot train`
 (progress display off, into a temporary run directory), so whatever the learner
 does today (a fast path included) is what is timed. Each chunk of training is one
 `perf/seed_iters_per_s` row, measured by the runner itself around the compiled
@@ -52,8 +52,8 @@ jax_setup.use_all_cpu_cores()
 import jax  # noqa: E402
 
 from pimbot import learners  # noqa: E402
-from pimbot.experiment import runner  # noqa: E402
-from pimbot.experiment.config import RunConfig, resolve  # noqa: E402
+from pimbot.training import runner  # noqa: E402
+from pimbot.training.config import RunConfig, resolve  # noqa: E402
 
 MARKER = "PIMBOT_RESULT "
 # Presets: the hyperparameters that express an agent, as names of pimbot versions old and

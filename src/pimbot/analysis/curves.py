@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from pimbot import statistics
-from pimbot.experiment import store
+from pimbot.training import store
 
 
 def load_curve(run_dir: str | Path, column: str) -> tuple[np.ndarray, np.ndarray]:

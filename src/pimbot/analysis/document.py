@@ -15,8 +15,8 @@ from pathlib import Path
 from pimbot.analysis.runs import RunRecord, RunTable
 from pimbot.analysis.tables import Table
 from pimbot.analysis.verdicts import KINDS, MARKERS, Verdict, from_text
-from pimbot.experiment.summary import FINAL_WINDOW
 from pimbot.statistics import MIN_SEEDS_FOR_CI
+from pimbot.training.summary import FINAL_WINDOW
 
 FIGURES = "figures"
 TABLES = "tables"

@@ -17,9 +17,9 @@ import numpy as np
 from pimbot.analysis import verdicts
 from pimbot.analysis.tables import Estimate, estimate
 from pimbot.analysis.verdicts import Verdict
-from pimbot.experiment import store
-from pimbot.experiment.summary import FINAL_WINDOW, convergence_point
 from pimbot.statistics import MIN_SEEDS_FOR_CI, difference_p_value
+from pimbot.training import store
+from pimbot.training.summary import FINAL_WINDOW, convergence_point
 
 PAPER_ATTACK_BUDGET = 25_000
 """PIMbot ran its ER attacks for 20–25k iterations (spec/experiments.md)."""

@@ -17,7 +17,7 @@ packaged under `ROOT` as ``<group>/<setting>/`` with ``<group>`` = the game and 
   how each pimbot column was derived from the log's columns, and what the log lacks.
 - ``metrics.csv``: one row per evaluation point and seed, pimbot's column names
   (``iteration``, ``seed``, ``eval/success``, ``eval/return_ratio``, ``eval/return_env/
-  agent_i`` …), so pimbot's own metric code (`pimbot.experiment.summary.summarize`,
+  agent_i`` …), so pimbot's own metric code (`pimbot.training.summary.summarize`,
   `pimbot.analysis.runs.load_table`, `pimbot.analysis.curves.load_curve`) reads it
   unchanged. Every evaluation point of every distinct log is kept (nothing is
   downsampled); a log that stops before its configured horizon is left out and listed.
@@ -54,9 +54,9 @@ from typing import Any
 import numpy as np
 
 from pimbot.analysis.runs import natural_key
-from pimbot.experiment import config as run_configs
-from pimbot.experiment import store
-from pimbot.experiment.summary import summarize
+from pimbot.training import config as run_configs
+from pimbot.training import store
+from pimbot.training.summary import summarize
 
 SOURCE = "original code"
 """config.json "source" of every converted run."""
@@ -372,7 +372,7 @@ def column_sources(room: bool, adversary: int, per_step: int) -> dict[str, str]:
 
 def run_metadata(run: run_configs.RunConfig, original: dict[str, Any]) -> dict[str, Any]:
     """config.json of a converted run: pimbot's identity, run config and env of `run`
-    (validated by `pimbot.experiment.config.resolve`), the source, and `original`."""
+    (validated by `pimbot.training.config.resolve`), the source, and `original`."""
     resolved = run_configs.resolve(run)
     return {
         "source": SOURCE,

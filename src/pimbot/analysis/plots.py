@@ -13,7 +13,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 from pimbot.analysis.curves import columns, load_curve, mean_and_band  # noqa: E402
 from pimbot.analysis.runs import RunRecord, condition_key, env_label  # noqa: E402
-from pimbot.experiment import store  # noqa: E402
+from pimbot.training import store  # noqa: E402
 
 RANDOM_POLICY = {
     "ER(2,1)": {"eval/success": 0.72, "eval/return_ratio": 0.38},

@@ -45,7 +45,8 @@ from pimbot.analysis.document import (
 )
 from pimbot.analysis.sections import attacks, defenses, device, generic, reciprocators, stag_hunt
 from pimbot.analysis.tables import Table, html_table, markdown_lines, write_csv
-from pimbot.experiment import presets, store, sweep
+from pimbot.suites import presets, sweep
+from pimbot.training import store
 
 MARKDOWN = "report.md"
 HTML = "report.html"

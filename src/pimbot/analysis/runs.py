@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 
 from pimbot.attacks import CONDITION_ORDER
-from pimbot.experiment import store
-from pimbot.experiment.summary import summarize
+from pimbot.training import store
+from pimbot.training.summary import summarize
 
 CLEAN = "clean"
 NO_DEFENSE = "none"

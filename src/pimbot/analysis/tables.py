@@ -149,8 +149,8 @@ def _final(summary: dict, column: str) -> Estimate | None:
 def summary_table(run_dirs: list[Path]) -> str:
     """One row per run: final success, return ratio, team return, convergence, speed."""
     from pimbot.analysis.plots import run_label
-    from pimbot.experiment import store
-    from pimbot.experiment.summary import summarize
+    from pimbot.training import store
+    from pimbot.training.summary import summarize
 
     rows = []
     for run_dir in run_dirs:

@@ -40,8 +40,8 @@ from jax.flatten_util import ravel_pytree
 from pimbot.attacks.signed_modes import TracedSign, with_traced_sign
 from pimbot.contracts.attack import AdversaryView, AgentParams, Attack
 from pimbot.contracts.params import check_int, check_number
+from pimbot.contracts.rollout import discounted_returns, received
 from pimbot.envs.core import InvalidParameter
-from pimbot.rollout import discounted_returns, received
 
 MODES = {"stealthy": 1.0, "disrupt": -1.0}
 

@@ -75,8 +75,8 @@ from flax import struct
 from pimbot.attacks.signed_modes import TracedSign, with_traced_sign
 from pimbot.contracts.attack import AdversaryView, AgentParams, Attack, UpdateSchedule, agent_row
 from pimbot.contracts.params import check_int, check_number
+from pimbot.contracts.rollout import discounted_returns, received
 from pimbot.envs.core import InvalidParameter
-from pimbot.rollout import discounted_returns, received
 
 CODE_MODES = {"disrupt": 1.0, "stealthy": -1.0}
 """Our mode names -> the code's `mode` sign (+1 "adversarial", −1 "constructive")."""

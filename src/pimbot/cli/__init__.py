@@ -34,9 +34,10 @@ HELP = ("-h", "--help")
 def choices() -> commands.Choices:
     """The allowed names, from the registries as they are now (plugins loaded)."""
     from pimbot import attacks, defenses, envs, learners
-    from pimbot.experiment import sweep, tracking
+    from pimbot.cli.robot import RENDERERS
     from pimbot.profiling.decision_loop import CONTROLLERS
-    from pimbot.robot.cli import RENDERERS
+    from pimbot.suites import sweep
+    from pimbot.training import tracking
 
     return commands.Choices(
         env_ids=tuple(envs.registered()),
@@ -132,7 +133,7 @@ def _from_run(argv: list[str]) -> dict:
         return {}
     from pathlib import Path
 
-    from pimbot.experiment.runs import saved_run_config
+    from pimbot.training.runs import saved_run_config
 
     run_dir = Path(runs[-1])
     if not (run_dir / "config.json").is_file():
@@ -180,7 +181,7 @@ def main(argv: list[str] | None = None) -> int:
         print("pimbot: interrupted; rerun the same command to resume", file=sys.stderr)
         return 130
     except RuntimeError as error:
-        from pimbot.experiment.runner import Diverged
+        from pimbot.training.runner import Diverged
 
         if not isinstance(error, Diverged):
             raise

@@ -6,15 +6,15 @@ import sys
 from pathlib import Path
 
 from pimbot import jax_setup
+from pimbot.cli import defenses as defense_cli
+from pimbot.cli import robot as robot_cli
 from pimbot.cli.listing import print_attacks, print_envs, print_learners
 from pimbot.cli.parsing import UsageError
-from pimbot.defenses import cli as defense_cli
-from pimbot.robot import cli as robot_cli
 
 
 def _log_backends(args) -> tuple[str, ...]:
     """The --log backends, each with its client installed (else a one-line error)."""
-    from pimbot.experiment import tracking
+    from pimbot.training import tracking
 
     backends = tracking.parse(list(args.log))
     tracking.require_clients(backends)
@@ -58,8 +58,8 @@ def check_writable(name: str, path: Path, *, directory: bool) -> None:
 
 
 def cmd_train(args) -> int:
-    from pimbot.experiment import memory, runner, store
-    from pimbot.experiment.config import (
+    from pimbot.training import memory, runner, store
+    from pimbot.training.config import (
         RunConfig,
         parse_attack_params,
         parse_env_params,
@@ -130,7 +130,7 @@ def cmd_train(args) -> int:
 
 
 def _finished_runs(paths: list[str]):
-    from pimbot.experiment import store
+    from pimbot.training import store
 
     run_dirs = [Path(p) for p in paths]
     for run_dir in run_dirs:
@@ -157,8 +157,8 @@ def cmd_plot(args) -> int:
 
 
 def cmd_profile(args) -> int:
-    from pimbot.experiment.config import parse_env_params
     from pimbot.profiling import CONTROLLERS, ProfileConfig, profile, samplers
+    from pimbot.training.config import parse_env_params
 
     check_writable("out", Path(args.out), directory=True)
     config = ProfileConfig(
@@ -214,8 +214,8 @@ def cmd_profile(args) -> int:
 
 def _run_suite(jobs, args, suite_name: str, loaded: tuple[str, ...]) -> int:
     """`--list` or run `jobs` into `args.out` (the machinery of reproduce and sweep)."""
-    from pimbot.experiment import sweep
-    from pimbot.experiment.jobs import KINDS
+    from pimbot.suites import sweep
+    from pimbot.suites.jobs import KINDS
 
     if args.ray_address is not None and args.backend != "ray":
         raise UsageError("ray_address: given without --backend ray")
@@ -259,14 +259,14 @@ def _run_suite(jobs, args, suite_name: str, loaded: tuple[str, ...]) -> int:
 
 
 def cmd_reproduce(args, loaded: tuple[str, ...]) -> int:
-    from pimbot.experiment import presets
+    from pimbot.suites import presets
 
     suite_name = "quick" if args.quick else "full"
     return _run_suite(presets.suite(quick=args.quick), args, suite_name, loaded)
 
 
 def cmd_sweep(args, loaded: tuple[str, ...]) -> int:
-    from pimbot.experiment import grid
+    from pimbot.suites import grid
 
     spec, jobs = grid.load_jobs(args.grid)  # every job resolved: nothing written on bad input
     return _run_suite(jobs, args, spec.name, loaded)
@@ -274,7 +274,7 @@ def cmd_sweep(args, loaded: tuple[str, ...]) -> int:
 
 def cmd_report(args) -> int:
     from pimbot.analysis import report
-    from pimbot.experiment.sweep import SweepError
+    from pimbot.suites.sweep import SweepError
 
     suite_dir = Path(args.suite_dir)
     if not suite_dir.is_dir():

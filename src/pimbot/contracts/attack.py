@@ -36,7 +36,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from pimbot.contracts.registry import Registry
-from pimbot.envs.core import InvalidParameter
+from pimbot.errors import InvalidParameter
 
 HOOKS = (
     "act",

@@ -18,7 +18,7 @@ from collections.abc import Callable
 from typing import Any
 
 from pimbot.contracts.registry import Registry
-from pimbot.rollout import ActFn, GiveFn
+from pimbot.contracts.rollout import ActFn, GiveFn
 
 
 @dataclasses.dataclass(frozen=True)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from pimbot.envs.core import InvalidParameter
+from pimbot.errors import InvalidParameter
 
 
 def is_number(value: Any) -> bool:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Generic, TypeVar
 
-from pimbot.envs.core import InvalidParameter
+from pimbot.errors import InvalidParameter
 
 T = TypeVar("T")
 

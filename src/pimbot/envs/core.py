@@ -16,9 +16,7 @@ from typing import Any, Protocol
 import jax
 import numpy as np
 
-
-class InvalidParameter(ValueError):
-    """A bad environment (or other) parameter; the message names the field and what is allowed."""
+from pimbot.errors import InvalidParameter, check_int  # noqa: F401 (public here too)
 
 
 class Env(Protocol):
@@ -214,12 +212,3 @@ def make(env_id: str, **params: Any) -> Env:
                 f"{name}: not a parameter of {env_id}; allowed: {', '.join(allowed) or 'none'}"
             )
     return entry.constructor(**params)
-
-
-def check_int(name: str, value: Any, low: int, high: int | None = None) -> None:
-    """Raises InvalidParameter unless `value` is an int in [low, high]."""
-    upper = "∞" if high is None else str(high)
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise InvalidParameter(f"{name}: must be an integer in [{low}, {upper}], got {value!r}")
-    if value < low or (high is not None and value > high):
-        raise InvalidParameter(f"{name}: must be an integer in [{low}, {upper}], got {value}")

@@ -43,9 +43,15 @@ from pimbot.contracts.defense import (
     PolicyStepContext,
 )
 from pimbot.contracts.learner import Actor
+from pimbot.contracts.rollout import (
+    Trajectory,
+    discounted_returns,
+    episode_metrics,
+    received,
+    rollout,
+)
 from pimbot.envs.core import Env, InvalidParameter
 from pimbot.learners.pg import act_fn, epsilon_at, evaluate_actor, policy_step, reinforce_loss
-from pimbot.rollout import Trajectory, discounted_returns, episode_metrics, received, rollout
 
 INCENTIVE_UPDATES = ("shared", "own")
 """The values of `LIOConfig.incentive_updates`, the default first."""

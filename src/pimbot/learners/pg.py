@@ -31,8 +31,8 @@ from pimbot.contracts.attack import (
 )
 from pimbot.contracts.defense import NO_DEFENSE, Defenses, EpsilonContext
 from pimbot.contracts.learner import Actor
+from pimbot.contracts.rollout import Trajectory, discounted_returns, episode_metrics, rollout
 from pimbot.envs.core import Env
-from pimbot.rollout import Trajectory, discounted_returns, episode_metrics, rollout
 
 
 @dataclasses.dataclass(frozen=True)

@@ -51,10 +51,10 @@ from pimbot.contracts.attack import (
 )
 from pimbot.contracts.defense import NO_DEFENSE, Defenses
 from pimbot.contracts.learner import Actor
+from pimbot.contracts.rollout import Trajectory, discounted_returns, episode_metrics, rollout
 from pimbot.envs.core import Env, InvalidParameter
 from pimbot.learners import epoch_schedule, exact_voi, influence, reciprocator_nets, tabular
 from pimbot.learners.pg import act_fn, evaluate_actor
-from pimbot.rollout import Trajectory, discounted_returns, episode_metrics, rollout
 
 
 @dataclasses.dataclass(frozen=True)

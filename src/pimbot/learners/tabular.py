@@ -26,8 +26,8 @@ import jax.numpy as jnp
 import optax
 
 from pimbot import nets
+from pimbot.contracts.rollout import Trajectory, step_metric_names
 from pimbot.learners import epoch_schedule, exact_voi
-from pimbot.rollout import Trajectory, step_metric_names
 
 
 def logits_table(module, policy, tables: exact_voi.GameTables, num_agents: int) -> jax.Array:

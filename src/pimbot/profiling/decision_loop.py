@@ -31,8 +31,9 @@ import numpy as np
 
 from pimbot import attacks, envs, learners
 from pimbot.contracts.attack import NO_ATTACK
+from pimbot.contracts.rollout import decide
+from pimbot.errors import check_int
 from pimbot.profiling import process_cpu
-from pimbot.rollout import decide
 
 CONTROLLERS = ("benign", "admo", "admo_code")
 """Plain LIO; the paper's ADMO on agent 0; the published code's ADMO (`admo_code`, a
@@ -78,8 +79,7 @@ class ProfileConfig:
             raise envs.InvalidParameter(
                 f"cadences: must be one or more integers ≥ 1, got {self.cadences!r}"
             )
-        if isinstance(self.rounds, bool) or not isinstance(self.rounds, int) or self.rounds < 1:
-            raise envs.InvalidParameter(f"rounds: must be an integer ≥ 1, got {self.rounds!r}")
+        check_int("rounds", self.rounds, 1)
         if not self.cpu_window_s > 0:
             raise envs.InvalidParameter(f"cpu_window_s: must be > 0, got {self.cpu_window_s!r}")
 

@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from pimbot.experiment import store
 from pimbot.profiling import process_cpu
+from pimbot.training import store
 
 TRACE = "trace.csv"
 LATENCY = "latency.csv"

@@ -14,9 +14,9 @@ import dataclasses
 from collections.abc import Callable
 from pathlib import Path
 
-from pimbot.experiment import store
 from pimbot.profiling import cadence, decision_loop, process_cpu, report, samplers
 from pimbot.profiling.decision_loop import ProfileConfig
+from pimbot.training import store
 
 
 def _summaries(config, controllers, sample_hz, sensors_factory):

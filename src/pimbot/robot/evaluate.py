@@ -22,12 +22,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from pimbot.envs.core import InvalidParameter
-from pimbot.experiment import runs, store
-from pimbot.experiment.config import ResolvedRun, coerce_like
-from pimbot.experiment.runs import LoadedRun
+from pimbot.contracts.rollout import decide
+from pimbot.errors import InvalidParameter, check_int
 from pimbot.robot.episode import EpisodeResult, PhysicsConfig, run_episode
-from pimbot.rollout import decide
+from pimbot.training import runs, store
+from pimbot.training.config import ResolvedRun, coerce_like
+from pimbot.training.runs import LoadedRun
 
 
 def load_run(run_dir: str | Path) -> LoadedRun:
@@ -219,8 +219,7 @@ def evaluate_run(
         record_first: keep the bus log of the first seed's first episode (for a rosbag).
         on_seed: called with (seed, physics success, abstract success) after each seed.
     """
-    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
-        raise InvalidParameter(f"episodes: must be an integer ≥ 1, got {episodes!r}")
+    check_int("episodes", episodes, 1)
     loaded = load_run(run_dir)
     cfg = physics_config(loaded.resolved, **(cfg_overrides or {}))
     start = time.perf_counter()

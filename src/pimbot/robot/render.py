@@ -66,7 +66,7 @@ def adversary_of(config: dict) -> int | None:
 
 def run_adversary(run_dir: str | Path) -> int | None:
     """`adversary_of` the config.json of a run directory."""
-    from pimbot.experiment import store
+    from pimbot.training import store
 
     return adversary_of(store.read_json(Path(run_dir) / store.CONFIG))
 

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from pimbot import statistics
 from pimbot.attacks import CONDITION_ORDER
-from pimbot.experiment import store
+from pimbot.training import store
 
 ENV_ORDER = {"ER(2,1)": 0, "ER(4,2)": 1, "ER(4,3)": 2}
 

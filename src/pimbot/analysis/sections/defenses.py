@@ -18,8 +18,9 @@ from pimbot.analysis import plots
 from pimbot.analysis.document import Context, Section, count_text, iterations_text
 from pimbot.analysis.runs import CLEAN, NO_DEFENSE, RunRecord, RunTable, condition_key, natural_key
 from pimbot.analysis.tables import INTERVAL, Table, estimate
-from pimbot.experiment import presets, store
-from pimbot.experiment.summary import convergence_point, final_value
+from pimbot.suites import presets
+from pimbot.training import store
+from pimbot.training.summary import convergence_point, final_value
 
 GROUP = "defenses"
 TIMING = "iteration_time.json"

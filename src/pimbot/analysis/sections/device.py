@@ -13,9 +13,9 @@ from pimbot.analysis.document import Claim, Comparison, Context, Section, count_
 from pimbot.analysis.runs import RunTable, condition_colors, condition_key, natural_key
 from pimbot.analysis.tables import INTERVAL, Estimate, Table, estimate, fmt
 from pimbot.analysis.verdicts import Verdict
-from pimbot.experiment import store
 from pimbot.profiling import decision_loop
 from pimbot.profiling import report as profile_files
+from pimbot.training import store
 
 PROFILE_RUN = "profile/er21_paired"
 CONTROLLERS = decision_loop.CONTROLLERS

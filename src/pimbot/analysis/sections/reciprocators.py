@@ -7,8 +7,8 @@ from pimbot.analysis.curves import load_curve
 from pimbot.analysis.document import Claim, Comparison, Context, Section, band_text, seeds_text
 from pimbot.analysis.runs import CLEAN, RunRecord, RunTable, condition_key, natural_key
 from pimbot.analysis.tables import INTERVAL, Table, difference, estimate
-from pimbot.experiment import store
 from pimbot.statistics import interval_text
+from pimbot.training import store
 
 GROUP = "reciprocators"
 LEARNER = "reciprocator"

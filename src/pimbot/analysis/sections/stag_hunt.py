@@ -8,8 +8,8 @@ from pimbot.analysis import judging, plots, verdicts
 from pimbot.analysis.document import Claim, Comparison, Context, Section, band_text, seeds_text
 from pimbot.analysis.runs import CLEAN, RunRecord, RunTable, natural_key
 from pimbot.analysis.tables import INTERVAL, Estimate, Table, difference, estimate
-from pimbot.experiment import store
 from pimbot.statistics import interval_text
+from pimbot.training import store
 
 GROUP = "stag_hunt"
 ATTACKED = "admo_disrupt"

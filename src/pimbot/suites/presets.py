@@ -16,10 +16,10 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from pimbot.experiment import grid
-from pimbot.experiment.config import DEFAULT_EVAL, FALLBACK_EVAL
-from pimbot.experiment.jobs import Job
 from pimbot.profiling.decision_loop import ProfileConfig
+from pimbot.suites import grid
+from pimbot.suites.jobs import Job
+from pimbot.training.config import DEFAULT_EVAL, FALLBACK_EVAL
 
 SHARED_UPDATES = (("incentive_updates", "shared"),)
 """N ≥ 3 LIO runs use the original code's shared incentive updates (the default, named

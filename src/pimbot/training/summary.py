@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from pimbot.experiment import store
+from pimbot.training import store
 
 CONVERGENCE_THRESHOLD = 0.9
 SMOOTHING_WINDOW = 10

@@ -55,8 +55,8 @@ from typing import Any
 
 from pimbot import attacks, defenses, envs, learners
 from pimbot.envs.core import InvalidParameter
-from pimbot.experiment.config import RunConfig, coerce_like, resolve
-from pimbot.experiment.jobs import Job
+from pimbot.suites.jobs import Job
+from pimbot.training.config import RunConfig, coerce_like, resolve
 
 Pairs = tuple[tuple[str, Any], ...]
 CLEAN = "none"

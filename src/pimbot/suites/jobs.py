@@ -17,7 +17,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from pimbot.experiment import store
+from pimbot.training import store
 
 
 @dataclasses.dataclass(frozen=True)
@@ -77,8 +77,8 @@ def _clear(path: Path) -> None:
 
 
 def train_status(path: Path, spec) -> str:
-    from pimbot.experiment.config import resolve
-    from pimbot.experiment.runner import RunDirConflict, check_run_dir
+    from pimbot.training.config import resolve
+    from pimbot.training.runner import RunDirConflict, check_run_dir
 
     try:
         check_run_dir(path, resolve(spec))
@@ -92,7 +92,7 @@ def train_status(path: Path, spec) -> str:
 def train_execute(
     path: Path, spec, suite_dir: Path, options: JobOptions, shared: Any = None
 ) -> dict[str, Any]:
-    from pimbot.experiment.runner import train
+    from pimbot.training.runner import train
 
     cache, strategies = shared if shared is not None else (None, None)
     result = train(
@@ -112,9 +112,9 @@ def train_share(spec, options: JobOptions, devices: int) -> str | None:
     key run as one task on one program; None if the spec does not resolve (it fails
     alone, with its own message)."""
     from pimbot.envs.core import InvalidParameter
-    from pimbot.experiment import programs
-    from pimbot.experiment.config import resolve
-    from pimbot.experiment.runner import program_shape
+    from pimbot.training import programs
+    from pimbot.training.config import resolve
+    from pimbot.training.runner import program_shape
 
     try:
         resolved = resolve(spec)
@@ -126,15 +126,15 @@ def train_share(spec, options: JobOptions, devices: int) -> str | None:
 
 def train_strategies(specs: list) -> dict[str, Any] | None:
     """kind -> attack of the strategy attacks among `specs` (a group's jobs), when there
-    are several kinds (the runner then runs them on one `programs.Strategies` program)."""
-    from pimbot.experiment import programs
-    from pimbot.experiment.config import resolve
+    are several kinds (the runner then runs them on one `strategy_union.Strategies` program)."""
+    from pimbot.attacks import strategy_union
+    from pimbot.training.config import resolve
 
     templates: dict[str, Any] = {}
     for spec in specs:
         attack = resolve(spec).attack
-        if programs.shareable(attack):
-            templates.setdefault(programs.member_kind(attack), attack)
+        if strategy_union.shareable(attack):
+            templates.setdefault(strategy_union.member_kind(attack), attack)
     return templates if len(templates) > 1 else None
 
 

@@ -52,8 +52,8 @@ def cmd_eval(args) -> int:
                 "rosbag: writing ROS 2 bags needs the rosbags package; pip install 'pimbot[rosbag]'"
             )
     from pimbot import statistics
-    from pimbot.experiment import store
     from pimbot.robot import evaluate
+    from pimbot.training import store
 
     overrides = evaluate.parse_physics_overrides(list(args.physics))
     if args.nominal_room:

@@ -26,11 +26,12 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 import pimbot
+from pimbot.attacks import strategy_union
 from pimbot.envs.core import InvalidParameter, with_traced
-from pimbot.experiment import programs, store, tracking
-from pimbot.experiment.config import ResolvedRun, RunConfig, env_parameters, resolve
-from pimbot.experiment.progress import CompileNotice, Progress
-from pimbot.experiment.summary import summarize
+from pimbot.training import programs, store, tracking
+from pimbot.training.config import ResolvedRun, RunConfig, env_parameters, resolve
+from pimbot.training.progress import CompileNotice, Progress
+from pimbot.training.summary import summarize
 
 TARGET_CHUNK_ITERATIONS = 2000
 CALL_ITERATIONS = 500
@@ -454,11 +455,11 @@ def train(
         on_chunk: called as on_chunk(iterations done, states, metric rows) after each
             checkpoint (the audit log).
         log: tracking backends ("tensorboard", "wandb", "mlflow"; see
-            `pimbot.experiment.tracking`) that receive every metric row and the config.
+            `pimbot.training.tracking`) that receive every metric row and the config.
         cache: compiled programs to take the run's from and to keep it in (a sweep
             worker passes one for all its jobs); None: a fresh one.
-        strategies: kind -> attack (`programs.shared_attack`): a strategy attack runs
-            as that member of `programs.Strategies`, the one program of every run that
+        strategies: kind -> attack (`strategy_union.shared_attack`): a strategy attack runs
+            as that member of `strategy_union.Strategies`, the one program of every run that
             differs from it only in numbers and in which of these attacks it is (same
             results; None: its own program).
     """
@@ -484,9 +485,9 @@ def train(
     per_chunk = evals_per_chunk(resolved.num_evals, period, chunk_iterations)
     per_call = periods_per_call(per_chunk, period, progress)
     program = programs.with_attack(resolved, resolved.attack.program_form())
-    if strategies and programs.shareable(resolved.attack):
+    if strategies and strategy_union.shareable(resolved.attack):
         program = programs.with_attack(
-            resolved, programs.shared_attack(resolved.attack, strategies)
+            resolved, strategy_union.shared_attack(resolved.attack, strategies)
         )
     args = program_args(program)
     cache = cache if cache is not None else ProgramCache()

@@ -16,8 +16,8 @@ import jax
 
 from pimbot.contracts.learner import Actor
 from pimbot.envs.core import InvalidParameter
-from pimbot.experiment import store
-from pimbot.experiment.config import ResolvedRun, RunConfig, resolve
+from pimbot.training import store
+from pimbot.training.config import ResolvedRun, RunConfig, resolve
 
 
 @dataclasses.dataclass(frozen=True)

@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from pimbot.envs.core import InvalidParameter
-from pimbot.experiment import store
+from pimbot.training import store
 
 CLIENTS = {"tensorboard": "tensorboardX", "wandb": "wandb", "mlflow": "mlflow"}
 """Each backend and the module of its client."""

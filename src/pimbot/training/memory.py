@@ -14,7 +14,7 @@ import jax
 import psutil
 
 from pimbot.envs.core import InvalidParameter
-from pimbot.experiment.config import ResolvedRun
+from pimbot.training.config import ResolvedRun
 
 
 def state_bytes(resolved: ResolvedRun) -> int:

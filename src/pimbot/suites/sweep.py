@@ -33,8 +33,8 @@ from typing import Any
 
 from pimbot import plugins as plugin_loader
 from pimbot.envs.core import InvalidParameter
-from pimbot.experiment import store
-from pimbot.experiment.jobs import KINDS, Job, JobConflict, JobOptions
+from pimbot.suites.jobs import KINDS, Job, JobConflict, JobOptions
+from pimbot.training import store
 
 INDEX = "index.json"
 BACKENDS = ("local", "ray")
@@ -200,8 +200,8 @@ def execute_group(
     plugin_loader.load_plugins(plugins, from_env=False)  # once per process
     shared = cache = None
     if jobs[0].kind == "train":
-        from pimbot.experiment.jobs import train_strategies
-        from pimbot.experiment.runner import ProgramCache
+        from pimbot.suites.jobs import train_strategies
+        from pimbot.training.runner import ProgramCache
 
         cache = ProgramCache()
         strategies = train_strategies([j.spec for j in jobs]) if len(jobs) > 1 else None

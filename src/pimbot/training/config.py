@@ -14,7 +14,7 @@ from typing import Any
 from pimbot import attacks, defenses, envs, learners
 from pimbot.contracts.attack import NO_ATTACK
 from pimbot.contracts.params import check_fields
-from pimbot.envs.core import InvalidParameter
+from pimbot.errors import InvalidParameter, check_int
 
 DEFAULT_EVAL = {  # (eval_period, eval_episodes) by environment family, as the original
     "escape_room-v0": (100, 10),
@@ -113,11 +113,6 @@ def env_arguments(run: RunConfig, learner: learners.LearnerDef) -> dict[str, Any
     return dict(declared.get(learner.env_defaults_of or learner.name, {})) | dict(run.env_params)
 
 
-def _check_positive_int(name: str, value: Any, low: int = 1) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value < low:
-        raise InvalidParameter(f"{name}: must be an integer ≥ {low}, got {value!r}")
-
-
 def resolve(run: RunConfig) -> ResolvedRun:
     """Validates `run` and builds its env and learner config.
 
@@ -126,12 +121,12 @@ def resolve(run: RunConfig) -> ResolvedRun:
     """
     learner = learners.get(run.learner)
     env = envs.make(run.env_id, **env_arguments(run, learner))
-    _check_positive_int("seeds", run.seeds)
-    _check_positive_int("first_seed", run.first_seed, low=0)
-    _check_positive_int("iterations", run.iterations)
+    check_int("seeds", run.seeds, 1)
+    check_int("first_seed", run.first_seed, 0)
+    check_int("iterations", run.iterations, 1)
     eval_period, eval_episodes = run.resolved_eval()
-    _check_positive_int("eval_period", eval_period)
-    _check_positive_int("eval_episodes", eval_episodes)
+    check_int("eval_period", eval_period, 1)
+    check_int("eval_episodes", eval_episodes, 1)
     if run.iterations % eval_period:
         raise InvalidParameter(
             f"iterations: must be a multiple of eval_period = {eval_period}, got {run.iterations}"

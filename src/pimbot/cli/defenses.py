@@ -19,7 +19,7 @@ DEPLOYMENT = {
 def run_defenses(args) -> tuple[tuple[str, Any], ...]:
     """`RunConfig.defenses` from the train options (InvalidParameter on bad input)."""
     from pimbot.envs.core import InvalidParameter
-    from pimbot.experiment.config import parse_defenses
+    from pimbot.training.config import parse_defenses
 
     if args.defense_param and not args.defense:
         raise InvalidParameter("defense_param: given without --defense NAME")

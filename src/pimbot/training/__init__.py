@@ -1,0 +1,2 @@
+"""Training: run configs, the compiled training loop, run directories, summaries,
+trackers and progress."""

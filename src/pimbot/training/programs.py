@@ -1,0 +1,106 @@
+"""Compiled programs of a suite: which jobs share one, and the attack that lets them.
+
+A training job's compiled chunk is determined by everything the runner closes
+over (the env, the learner and its config, the evaluation schedule, the
+chunk length) and by the *structure* of the attack and defenses it is given
+(their classes and static fields); their numeric parameters are traced.
+`program_key` is that determinant, so two jobs with equal keys run on one
+compiled program.
+
+Attacks of different classes are different structures; the strategy attacks fold into
+one (`pimbot.attacks.strategy_union.Strategies`), and `share_key` is the key after
+that folding (the planner's grouping key).
+
+An attack's `program_form` is what the program is compiled for: a static field
+that only selects a number becomes a traced leaf there (ADMO's mode, a ±1
+sign), so jobs that differ only in it share one program too.
+
+An env's `traced_fields` (optional) name the numbers its compiled code uses only
+as values, never in a shape or in Python control flow (Escape Room's M): the
+program takes them, and the env's known optimal team return, as traced
+arguments (`env_numbers`) and runs on `envs.core.with_traced(env, numbers)`, so ER(4, 2)
+and ER(4, 3) share one program.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+from typing import Any
+
+import numpy as np
+
+from pimbot.attacks import strategy_union
+from pimbot.attacks.strategy_union import structure
+from pimbot.contracts.attack import Attack
+from pimbot.envs.core import traced_fields, traced_values, with_traced
+from pimbot.training.config import ResolvedRun
+
+
+def env_numbers(env: Any) -> dict[str, Any]:
+    """The traced numbers of `env`'s program: its traced fields (`envs.core.traced_values`)
+    and, where the env knows its optimal team return, that return's reciprocal and the
+    optimal-rate threshold 0.9 × it."""
+    numbers: dict[str, Any] = traced_values(env)
+    optimum = getattr(env, "optimal_team_return", None)
+    if optimum:
+        # XLA turns a division by a constant into a product with its float32 reciprocal;
+        # the ratio is that product, so it stays bitwise what it was with the optimum
+        # compiled in
+        numbers["optimal_team_return_reciprocal"] = np.float32(1.0) / np.float32(optimum)
+        numbers["optimal_threshold"] = np.float32(0.9 * optimum)
+    return numbers
+
+
+def _env_structure(env: Any) -> str:
+    """`env`'s repr with its traced fields left out (their values are arguments)."""
+    return repr(with_traced(env, {name: "<traced>" for name in traced_fields(env)}))
+
+
+def _closed_over(resolved: ResolvedRun, periods: int, seeds: int, devices: int) -> tuple:
+    """What the chunk closes over, besides the attack, the defenses and the env's
+    traced numbers (their structure is part of the key)."""
+    return (
+        type(resolved.env).__module__,
+        type(resolved.env).__qualname__,
+        _env_structure(resolved.env),
+        structure(env_numbers(resolved.env)),
+        resolved.run.learner,
+        repr(resolved.learner_config),
+        resolved.eval_period,
+        resolved.eval_episodes,
+        periods,
+        seeds,
+        devices,
+    )
+
+
+def program_key(resolved: ResolvedRun, periods: int, seeds: int, devices: int = 1) -> str:
+    """A digest of what determines the compiled chunk of `periods` evaluation periods for
+    `seeds` (padded) seeds on `devices` devices: jobs with equal keys share one program."""
+    parts = (
+        _closed_over(resolved, periods, seeds, devices),
+        structure(resolved.attack.program_form()),
+        structure(resolved.defenses),
+    )
+    return hashlib.sha256(repr(parts).encode()).hexdigest()[:16]
+
+
+def share_key(resolved: ResolvedRun, periods: int, seeds: int, devices: int = 1) -> str:
+    """`program_key` after folding the strategy attacks: the planner's grouping key."""
+    attack = resolved.attack
+    attack_part = (
+        ("strategies", attack.adversary)
+        if strategy_union.shareable(attack)
+        else structure(attack.program_form())
+    )
+    parts = (
+        _closed_over(resolved, periods, seeds, devices),
+        attack_part,
+        structure(resolved.defenses),
+    )
+    return hashlib.sha256(repr(parts).encode()).hexdigest()[:16]
+
+
+def with_attack(resolved: ResolvedRun, attack: Attack) -> ResolvedRun:
+    return dataclasses.replace(resolved, attack=attack)
