@@ -1,6 +1,6 @@
 """LIO — learning to incentivize other learners (Yang et al., NeurIPS 2020).
 
-One iteration, per seed and for all agents at once (spec/lio.md):
+One iteration, per seed and for all agents at once (docs/lio.md):
   1. play τ with the current policies θ and incentive functions η;
   2. every recipient j takes a policy-gradient step on env + received
      incentives: θ̂_j(η) = θ_j + β∇_θj[Σ_t log π(a_t|o_t) G_t + c_ent·H];
@@ -372,10 +372,30 @@ def meta_gradients_reference(env, cfg, policy, incentive, traj, epsilon, new_tra
 
 
 def meta_step(cfg, incentive, opt_state, grads):
-    """Adam ascent of every giver on its own surrogate, all at once."""
+    """The meta-gradient step: Adam ascent (rate `lr_incentive`) along `grads` — every
+    giver on its own surrogate at once (`incentive` the stacked η), or one giver's turn
+    (`incentive` the pair (η, θ) its surrogate depends on, `giver_turns`)."""
     ascent = jax.tree.map(jnp.negative, grads)  # Adam minimises
     updates, opt_state = optax.adam(cfg.lr_incentive).update(ascent, opt_state)
     return optax.apply_updates(incentive, updates), opt_state
+
+
+def cost_step(cfg, incentive, opt_state, cost_grad, giver: int | None = None):
+    """The separate cost step: Adam descent (rate `lr_cost`) along `cost_grad()`, the
+    gradient of the incentive cost, taken only when there is a step (`lr_cost` > 0).
+
+    Args:
+        incentive: every giver's stacked η.
+        giver: None: the step moves every η_i (`cost_grad()` over the stacked η); giver i:
+            only η_i (`cost_grad()` over η_i, `opt_state` giver i's own).
+    """
+    if not cfg.lr_cost > 0:
+        return incentive, opt_state
+    updates, opt_state = optax.adam(cfg.lr_cost).update(cost_grad(), opt_state)
+    if giver is None:
+        return optax.apply_updates(incentive, updates), opt_state
+    own = optax.apply_updates(agent_row(incentive, giver), updates)
+    return with_agent_row(incentive, giver, own), opt_state
 
 
 def giver_cost(own_incentive, giver, env, cfg, traj: Trajectory) -> jax.Array:
@@ -431,20 +451,19 @@ def giver_turns(env, cfg, givers, frozen, policy, incentive, opts, traj, epsilon
     Returns:
         (η, opts).
     """
-    meta, cost = optax.adam(cfg.lr_incentive), optax.adam(cfg.lr_cost)
 
     def turn(incentive, policy, giver: int, own_meta, own_cost):
         grads = jax.grad(giver_objective, argnums=(0, 4))(
             incentive, giver, env, cfg, policy, traj, epsilon, new_traj
         )
-        ascent = jax.tree.map(jnp.negative, grads)  # Adam minimises
-        updates, own_meta = meta.update(ascent, own_meta)
-        moved, policy_moved = optax.apply_updates((incentive, policy), updates)
-        if cfg.lr_cost > 0:
-            cost_grad = jax.grad(giver_cost)(agent_row(incentive, giver), giver, env, cfg, traj)
-            cost_updates, own_cost = cost.update(cost_grad, own_cost)
-            own = optax.apply_updates(agent_row(moved, giver), cost_updates)
-            moved = with_agent_row(moved, giver, own)
+        (moved, policy_moved), own_meta = meta_step(cfg, (incentive, policy), own_meta, grads)
+        moved, own_cost = cost_step(
+            cfg,
+            moved,
+            own_cost,
+            lambda: jax.grad(giver_cost)(agent_row(incentive, giver), giver, env, cfg, traj),
+            giver,
+        )
         if frozen is not None:
             moved = with_agent_row(moved, frozen, agent_row(incentive, frozen))
         return moved, policy_moved, own_meta, own_cost
@@ -495,29 +514,74 @@ def update(
 ) -> tuple[LIOState, dict[str, jax.Array]]:
     """One LIO iteration (two rollouts), with the attack and the defenses consulted at
     their hook points."""
-    policy_module, incentive_module = _modules(env, cfg)
     key, key_first, key_second = jax.random.split(state.key, 3)
     schedule_epsilon = epsilon_at(
         state.iteration, cfg.epsilon_start, cfg.epsilon_end, cfg.epsilon_decay_iters
     )
     honest = defense_hooks.honest_agents(attack, env.num_agents)
-    defense_state = state.defense_state
 
-    # 1. exploration (defense hook: acting_epsilon)
+    # 1. EXPLORE: the acting ε (defense hook: acting_epsilon)
     epsilon = defense_hooks.acting_epsilon(
-        defenses, defense_state, EpsilonContext(schedule_epsilon, honest)
+        defenses, state.defense_state, EpsilonContext(schedule_epsilon, honest)
     )
-    # 2. play τ with θ and η (attack hooks: act, emit)
-    give = give_fn(incentive_module, state.incentive, env.num_actions, cfg.incentive_max)
-    act = act_fn(policy_module, state.policy, epsilon)
-    traj = rollout(env, key_first, act, give, attack, state.env_steps, state.attack_state)
+    # 2. COLLECT τ with θ and η (attack hooks: act, emit)
+    traj = play(env, cfg, attack, state, state.policy, epsilon, key_first, state.env_steps)
     env_steps = state.env_steps + traj.valid.sum()
+    # 3. RECIPIENTS θ → θ̂ on env reward + the incentives they accept (defense hooks:
+    #    learning_incentives, after_policy_step; attack hooks: learning_rewards, policy_sign)
+    new_policy, defense_state, defense_metrics = recipients_step(
+        env, cfg, attack, defenses, state, traj, epsilon, honest
+    )
+    # 4. COLLECT τ̂ with θ̂
+    new_traj = play(env, cfg, attack, state, new_policy, epsilon, key_second, env_steps)
+    env_steps = env_steps + new_traj.valid.sum()
+    # 5. GIVERS η → η' through the recipients' updates, and the cost step; a learning
+    #    attack's step replaces the adversary's (attack hook: adversary_step)
+    success = episode_metrics(env, traj)["success"]
+    incentive, opts, new_policy, attack_state, attack_metrics = givers_step(
+        env, cfg, attack, state, traj, new_traj, new_policy, epsilon, schedule_epsilon, success
+    )
+    # 6. OBSERVE: the attack's own state (attack hook: observe)
+    attack_state = attack.observe(
+        attack_state, attack_key(key_first), Outcome(success, state.iteration, env_steps)
+    )
 
-    # 3. every recipient's policy step θ → θ̂ on env reward + the incentives it accepts
-    #    (defense hook: learning_incentives; attack hooks: learning_rewards, policy_sign)
-    accepted, defense_state, defense_metrics = defense_hooks.learning_incentives(
+    # 7. θ ← θ̂
+    new_state = LIOState(
+        policy=new_policy,
+        incentive=incentive,
+        incentive_opt=opts[0],
+        cost_opt=opts[1],
+        attack_state=attack_state,
+        defense_state=defense_state,
+        key=key,
+        iteration=state.iteration + 1,
+        env_steps=env_steps,
+    )
+    metrics = {"train/epsilon": schedule_epsilon, "train/success": success}
+    return new_state, {**metrics, **defense_metrics, **attack_metrics}
+
+
+def play(env, cfg, attack, state: LIOState, policy, epsilon, key, env_steps) -> Trajectory:
+    """One episode with the policies `policy` (ε-mixed) and the incentive functions η of
+    `state` (attack hooks: act, emit)."""
+    policy_module, incentive_module = _modules(env, cfg)
+    give = give_fn(incentive_module, state.incentive, env.num_actions, cfg.incentive_max)
+    act = act_fn(policy_module, policy, epsilon)
+    return rollout(env, key, act, give, attack, env_steps, state.attack_state)
+
+
+def recipients_step(env, cfg, attack, defenses, state: LIOState, traj: Trajectory, epsilon, honest):
+    """θ → θ̂: every recipient's actual policy step on τ, on env reward + the incentives it
+    accepts (defense hooks: learning_incentives, after_policy_step; attack hooks:
+    learning_rewards, policy_sign).
+
+    Returns:
+        (θ̂, the defenses' states, their metrics).
+    """
+    accepted, defense_state, incentive_metrics = defense_hooks.learning_incentives(
         defenses,
-        defense_state,
+        state.defense_state,
         IncentiveContext(
             traj.incentives * traj.valid[:, None, None],
             traj.incentives,
@@ -529,7 +593,6 @@ def update(
     new_policy = actual_update(
         env, cfg, attack, state.attack_state, state.policy, traj, epsilon, accepted
     )
-    # (defense hook: after_policy_step)
     new_policy, defense_state, monitor_metrics = defense_hooks.after_policy_step(
         defenses,
         defense_state,
@@ -544,58 +607,38 @@ def update(
             honest,
         ),
     )
+    return new_policy, defense_state, {**incentive_metrics, **monitor_metrics}
 
-    # 4. play τ̂ with θ̂
-    act = act_fn(policy_module, new_policy, epsilon)
-    new_traj = rollout(env, key_second, act, give, attack, env_steps, state.attack_state)
-    env_steps = env_steps + new_traj.valid.sum()
 
-    # 5. every giver's meta-gradient step on η through the recipients' updates, and the
-    #    separate cost step; a learning attack replaces the adversary's (attack hook:
-    #    adversary_step), its pullbacks batched with the other givers' where they are
-    #    taken at the same point
-    learning_attack = "adversary_step" in attack.hooks
-    a = attack.adversary
-    success = episode_metrics(env, traj)["success"]
-    sequential = one_by_one(cfg, env.num_agents)
-    if learning_attack or not sequential:
-        pullbacks = recipient_pullbacks(
-            env, cfg, state.policy, state.incentive, traj, epsilon, new_traj
-        )
-    attack_state, attack_metrics = state.attack_state, {}
+def givers_step(
+    env, cfg, attack, state, traj, new_traj, new_policy, epsilon, schedule_epsilon, success
+):
+    """η → η': every giver's meta-gradient step through the recipients' updates and its cost
+    step; a learning attack's own step replaces the adversary's (attack hook: adversary_step).
+
+    "Shared" updates for N ≥ 3 take the givers' steps one after another (`giver_turns`),
+    otherwise all at once (`all_at_once`), the attack's second-order pass then batched with
+    the other givers' (taken at the same point).
+
+    Returns:
+        (η', (meta-gradient opt state, cost opt state), θ̂ with the adversary's row
+        replaced, attack state, attack metrics).
+    """
+    learning = "adversary_step" in attack.hooks
+    a, sequential = attack.adversary, one_by_one(cfg, env.num_agents)
+    givers = [i for i in range(env.num_agents) if not (learning and i == a)]
+    policy, incentive, opts = state.policy, state.incentive, (state.incentive_opt, state.cost_opt)
+    if learning or not sequential:
+        pullbacks = recipient_pullbacks(env, cfg, policy, incentive, traj, epsilon, new_traj)
     if sequential:
-        givers = [i for i in range(env.num_agents) if not (learning_attack and i == a)]
-        incentive, (incentive_opt, cost_opt) = giver_turns(
-            env,
-            cfg,
-            givers,
-            a if learning_attack else None,
-            state.policy,
-            state.incentive,
-            (state.incentive_opt, state.cost_opt),
-            traj,
-            epsilon,
-            new_traj,
+        frozen = a if learning else None
+        incentive, opts = giver_turns(
+            env, cfg, givers, frozen, policy, incentive, opts, traj, epsilon, new_traj
         )
-        if learning_attack:
-            view, _ = adversary_view(
-                env,
-                cfg,
-                attack,
-                state,
-                pullbacks,
-                new_policy,
-                traj,
-                new_traj,
-                success,
-                schedule_epsilon,  # the adversary runs no defense: its ε is the schedule's
-                None,
-            )
-            own, attack_state, attack_metrics = attack.adversary_step(
-                attack_state, attack_key(state.key), view
-            )
-    elif learning_attack:
-        givers = [i for i in range(env.num_agents) if i != a]
+    attack_state, attack_metrics, read_back = state.attack_state, {}, None
+    if learning:
+        batched = None if sequential else giver_cotangents(env, cfg, new_traj)[jnp.array(givers)]
+        # the adversary runs no defense: its ε is the schedule's
         view, read_back = adversary_view(
             env,
             cfg,
@@ -607,53 +650,48 @@ def update(
             new_traj,
             success,
             schedule_epsilon,
-            giver_cotangents(env, cfg, new_traj)[jnp.array(givers)],
+            batched,
         )
         own, attack_state, attack_metrics = attack.adversary_step(
             attack_state, attack_key(state.key), view
         )
-        d_received = read_back()  # [giver ≠ a, T, N], from the attack's pass (or its own)
-        meta_grad, cost_grad = other_givers_gradients(
-            env, cfg, givers, state.incentive, traj, d_received
-        )
-        incentive, incentive_opt = meta_step(cfg, state.incentive, state.incentive_opt, meta_grad)
-        cost_opt = state.cost_opt
-        if cfg.lr_cost > 0:
-            cost_updates, cost_opt = optax.adam(cfg.lr_cost).update(cost_grad, state.cost_opt)
-            incentive = optax.apply_updates(incentive, cost_updates)
-    else:
-        meta_grad = meta_gradients_from(env, cfg, pullbacks, traj, new_traj)
-        incentive, incentive_opt = meta_step(cfg, state.incentive, state.incentive_opt, meta_grad)
-        cost_opt = state.cost_opt
-        if cfg.lr_cost > 0:
-            cost_grad = jax.grad(incentive_cost)(state.incentive, env, cfg, traj)
-            cost_updates, cost_opt = optax.adam(cfg.lr_cost).update(cost_grad, state.cost_opt)
-            incentive = optax.apply_updates(incentive, cost_updates)
-    if learning_attack:
+    if not sequential:
+        incentive, opts = all_at_once(env, cfg, givers, state, pullbacks, traj, new_traj, read_back)
+    if learning:
         new_policy = with_agent_row(new_policy, a, own.policy)
         incentive = with_agent_row(incentive, a, own.incentive)
+    return incentive, opts, new_policy, attack_state, attack_metrics
 
-    metrics = {"train/epsilon": schedule_epsilon, "train/success": success}
-    metrics.update(defense_metrics)
-    metrics.update(monitor_metrics)
-    metrics.update(attack_metrics)
-    # 6. the attack's own state (attack hook: observe)
-    attack_state = attack.observe(
-        attack_state, attack_key(key_first), Outcome(success, state.iteration, env_steps)
-    )
 
-    new_state = LIOState(
-        policy=new_policy,
-        incentive=incentive,
-        incentive_opt=incentive_opt,
-        cost_opt=cost_opt,
-        attack_state=attack_state,
-        defense_state=defense_state,
-        key=key,
-        iteration=state.iteration + 1,
-        env_steps=env_steps,
-    )
-    return new_state, metrics
+def all_at_once(env, cfg, givers, state: LIOState, pullbacks, traj, new_traj, read_back):
+    """The givers' meta-gradient and cost steps all at once, each on its own η_i.
+
+    Without a learning attack (`read_back` None) every giver's gradients come from the
+    second-order pass `pullbacks` (`meta_gradients_from`); with one, those of `givers` (all
+    but the adversary) from their cotangents that `read_back()` gives back from the
+    attack's batched pass (`other_givers_gradients`).
+
+    Returns:
+        (η', (meta-gradient opt state, cost opt state)).
+    """
+    if read_back is None:
+        meta_grad = meta_gradients_from(env, cfg, pullbacks, traj, new_traj)
+
+        def cost_grad():
+            return jax.grad(incentive_cost)(state.incentive, env, cfg, traj)
+
+    else:
+        d_received = read_back()  # [giver ≠ a, T, N], from the attack's pass (or its own)
+        meta_grad, their_cost_grad = other_givers_gradients(
+            env, cfg, givers, state.incentive, traj, d_received
+        )
+
+        def cost_grad():
+            return their_cost_grad
+
+    incentive, incentive_opt = meta_step(cfg, state.incentive, state.incentive_opt, meta_grad)
+    incentive, cost_opt = cost_step(cfg, incentive, state.cost_opt, cost_grad)
+    return incentive, (incentive_opt, cost_opt)
 
 
 def adversary_view(
@@ -673,8 +711,6 @@ def adversary_view(
     """
     policy_module, incentive_module = _modules(env, cfg)
     a = attack.adversary
-    _, pull_recipients = pullbacks
-    pulled: list[jax.Array] = []
 
     def log_probs(theta_a):
         logits = policy_module.apply(theta_a, new_traj.obs[:, a])
@@ -693,20 +729,7 @@ def adversary_view(
 
     eta_a = agent_row(state.incentive, a)
     _, pull_own = jax.vjp(lambda eta: own_row(eta, traj), eta_a)
-
-    def meta_pullback(cotangents):
-        k = cotangents.shape[0]
-        if batched is not None and not pulled:
-            both = jax.vmap(pull_recipients)(jnp.concatenate([cotangents, batched]))
-            pulled.append(both[k:])
-            d_received = both[:k]
-        else:
-            d_received = jax.vmap(pull_recipients)(cotangents)
-        return jax.vmap(lambda c: pull_own(c)[0])(d_received)
-
-    def read_back():
-        return pulled[0] if pulled else jax.vmap(pull_recipients)(batched)
-
+    meta_pullback, read_back = adversary_pullback(pullbacks[1], pull_own, batched)
     view = AdversaryView(
         policy=new_policy,  # the adversary's row is unchanged: its policy sign is 0
         incentive=state.incentive,
@@ -723,6 +746,35 @@ def adversary_view(
         iteration=state.iteration,
     )
     return view, read_back
+
+
+def adversary_pullback(pull_recipients, pull_own, batched):
+    """The adversary's `meta_pullback`: its cotangents [K, T, N] on the recipients'
+    log-probabilities on τ̂ pulled back through their modelled updates (`pull_recipients`)
+    and then through its own incentive net (`pull_own`), the other givers' cotangents
+    `batched` [K', T, N] (or None) pulled back through the recipients in the same pass as
+    its first call.
+
+    Returns:
+        (meta_pullback, read_back): read_back() gives the pulled-back `batched` cotangents
+        [K', T, N] — from the attack's pass when it made one, else from a pass of their own.
+    """
+    pulled: list[jax.Array] = []
+
+    def meta_pullback(cotangents):
+        k = cotangents.shape[0]
+        if batched is not None and not pulled:
+            both = jax.vmap(pull_recipients)(jnp.concatenate([cotangents, batched]))
+            pulled.append(both[k:])
+            d_received = both[:k]
+        else:
+            d_received = jax.vmap(pull_recipients)(cotangents)
+        return jax.vmap(lambda c: pull_own(c)[0])(d_received)
+
+    def read_back():
+        return pulled[0] if pulled else jax.vmap(pull_recipients)(batched)
+
+    return meta_pullback, read_back
 
 
 def acting(env: Env, cfg: LIOConfig, state: LIOState) -> Actor:

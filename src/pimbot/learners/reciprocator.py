@@ -1,6 +1,6 @@
 """Reciprocator (Zhou, Hong, Kao, NeurIPS 2024) and the naive learner `nl` (its weight 0).
 
-One iteration, per seed and for all agents at once (spec/reciprocators.md):
+One iteration, per seed and for all agents at once (docs/reciprocators.md):
   1. play `num_envs` parallel episodes with the current softmax policies;
   2. store them, and every `voi_refit_period` iterations refit the value-of-
      influence estimate on the last `voi_history` batches: learned models
@@ -473,87 +473,38 @@ def update(
     update."""
     del defenses
     key, play_key, fit_key = jax.random.split(state.key, 3)
-    # 1. play the batch (attack hook: act)
+    # 1. COLLECT the batch (attack hook: act)
     trajs = play_batch(
         env, cfg, state.policy, play_key, attack, state.env_steps, state.attack_state
     )
-    # 2.–3. store it, refit the VoI estimate when due, VoI of every ordered pair on every step
+    # 2. STORE the batch and REFIT the VoI estimate when due; VoI of every ordered pair, step
     models, replay, voi, fit_metrics = influence_step(env, cfg, state, fit_key, trajs)
-    # the balance and the reciprocal reward
+    # 3. BALANCE per pair and each agent's RECIPROCAL REWARD
     balances, reciprocal = jax.vmap(
         lambda v: influence.balance_and_reciprocal_reward(v, cfg.gamma, cfg.grudge)
     )(voi)
-    # 4. PPO on env + w · reciprocal reward (attack hooks: update_schedule, learning_rewards,
-    # policy_sign); without an `update_schedule` the ordinary program, unchanged
-    schedule, weight = None, cfg.reciprocal_weight
-    if "update_schedule" in attack.hooks:
-        success = jax.vmap(lambda t: episode_metrics(env, t))(trajs)["success"].mean()
-        view = adversary_view(env, cfg, attack, state.policy, trajs, voi, success, state.iteration)
-        schedule = attack.update_schedule(
-            state.attack_state, attack_key(fit_key), view, cfg.ppo_epochs
-        )
-        weight = cfg.reciprocal_weight * schedule.reward_weight_scale  # [N]
-    if cfg.voi_rewards == "after_earlier_agents":
-        reciprocal = influence.reciprocal_rewards_in_id_order(
-            balances,
-            voi,
-            lambda rec: (
-                attack.learning_rewards(state.attack_state, trajs.env_rewards, weight * rec)
-                - trajs.env_rewards
-            ),
-        )
-    rewards = attack.learning_rewards(state.attack_state, trajs.env_rewards, weight * reciprocal)
+    # 4. PPO on env + w·reciprocal (attack hooks: update_schedule, learning_rewards, policy_sign)
+    schedule, weight = attack_schedule(env, cfg, attack, state, trajs, voi, fit_key)
+    rewards, reciprocal = shaped_rewards(
+        cfg, attack, state, trajs, balances, voi, reciprocal, weight
+    )
     returns = normalized_returns(rewards, trajs.valid, cfg.gamma)
     sign = attack.policy_sign(state.attack_state, env.num_agents)
-    if cfg.voi == "exact":  # a matrix game: the same PPO loss, summed per state
-        n, tables = env.num_agents, exact_voi.game_tables(env)
-        states = exact_voi.state_one_hot(trajs.obs, tables)
-        policy, value, opt = tabular.ppo_update(
-            _modules(env, cfg),
-            cfg,
-            tables,
-            state.policy,
-            state.value,
-            state.opt,
-            states.reshape(-1, states.shape[-1]),
-            jnp.moveaxis(trajs.actions, 2, 0).reshape(n, -1),
-            jnp.moveaxis(returns, 2, 0).reshape(n, -1),
-            trajs.valid.reshape(-1),
-            sign,
-            schedule,
-        )
-    else:
-        policy, value, opt = ppo_update(
-            env, cfg, state.policy, state.value, state.opt, trajs, returns, sign, schedule
-        )
-
-    per_episode = jax.vmap(lambda t: episode_metrics(env, t))(trajs)
-    success = per_episode["success"].mean()
-    valid = trajs.valid.astype(jnp.float32)
-    count = jnp.maximum(valid.sum(), 1.0)
+    policy, value, opt = ppo_step(env, cfg, state, trajs, returns, sign, schedule)
+    success = batch_success(env, trajs)
     metrics = {
         "train/success": success,
-        "train/reciprocal_reward": jnp.sum(reciprocal * valid[..., None], axis=(0, 1)) / count,
-        "train/voi_given": jnp.sum(voi.sum(-1) * valid[..., None], axis=(0, 1)) / count,
-        "train/voi_received": jnp.sum(voi.sum(-2) * valid[..., None], axis=(0, 1)) / count,
-        # per agent, the share of its valid steps on which it played action 0 (IPD: cooperate)
-        "train/action_0_rate": jnp.sum((trajs.actions == 0) * valid[..., None], axis=(0, 1))
-        / count,
+        **batch_metrics(trajs, reciprocal, voi),
         **fit_metrics,
         **voi_metrics(voi, trajs.actions, trajs.valid, env.num_actions),
         **(schedule.metrics if schedule is not None else {}),
     }
-    # 5. a learning attack replaces the adversary's update (attack hook: adversary_step)
-    attack_state = state.attack_state
-    if "adversary_step" in attack.hooks:
-        view = adversary_view(env, cfg, attack, policy, trajs, voi, success, state.iteration)
-        own, attack_state, attack_metrics = attack.adversary_step(
-            attack_state, attack_key(state.key), view
-        )
-        policy = with_agent_row(policy, attack.adversary, own.policy)
-        metrics.update(attack_metrics)
+    # 5. a learning attack's step replaces the adversary's update (attack hook: adversary_step)
+    policy, attack_state, attack_metrics = adversary_turn(
+        env, cfg, attack, state, policy, trajs, voi, success
+    )
     env_steps = state.env_steps + trajs.valid.sum()
-    # 6. the attack's own state (attack hook: observe)
+    # 6. OBSERVE: the attack's own state (attack hook: observe)
     attack_state = attack.observe(
         attack_state, attack_key(play_key), Outcome(success, state.iteration, env_steps)
     )
@@ -570,7 +521,108 @@ def update(
         iteration=state.iteration + 1,
         env_steps=env_steps,
     )
-    return new_state, metrics
+    return new_state, {**metrics, **attack_metrics}
+
+
+def batch_success(env: Env, trajs: Trajectory) -> jax.Array:
+    """The share of the batch's episodes that succeeded."""
+    return jax.vmap(lambda t: episode_metrics(env, t))(trajs)["success"].mean()
+
+
+def attack_schedule(env, cfg, attack, state: ReciprocatorState, trajs, voi, key):
+    """(schedule, w): an attack's `update_schedule` of every agent's PPO epochs, from its view
+    of the batch before the update, and the reciprocal weight it scales (per agent [N]);
+    without that hook (None, `reciprocal_weight`)."""
+    if "update_schedule" not in attack.hooks:
+        return None, cfg.reciprocal_weight
+    success = batch_success(env, trajs)
+    view = adversary_view(env, cfg, attack, state.policy, trajs, voi, success, state.iteration)
+    schedule = attack.update_schedule(state.attack_state, attack_key(key), view, cfg.ppo_epochs)
+    return schedule, cfg.reciprocal_weight * schedule.reward_weight_scale
+
+
+def shaped_rewards(cfg, attack, state: ReciprocatorState, trajs, balances, voi, reciprocal, weight):
+    """Every agent's learning reward [E, T, N], env + `weight` · reciprocal reward as the
+    attack lets it learn (attack hook: learning_rewards), and the reciprocal reward in it:
+    `reciprocal` as given, or with `voi_rewards="after_earlier_agents"` recomputed in agent
+    id order on the earlier agents' shaped rewards.
+
+    Returns:
+        (rewards, reciprocal) [E, T, N].
+    """
+
+    def learning_rewards(rec):
+        return attack.learning_rewards(state.attack_state, trajs.env_rewards, weight * rec)
+
+    if cfg.voi_rewards == "after_earlier_agents":
+        reciprocal = influence.reciprocal_rewards_in_id_order(
+            balances, voi, lambda rec: learning_rewards(rec) - trajs.env_rewards
+        )
+    return learning_rewards(reciprocal), reciprocal
+
+
+def ppo_step(env, cfg, state: ReciprocatorState, trajs, returns, sign, schedule):
+    """PPO on the batch (`ppo_update`); on a matrix game (`voi="exact"`) the same loss summed
+    per state (`tabular.ppo_update`).
+
+    Returns:
+        (policy, value, opt).
+    """
+    if cfg.voi != "exact":
+        return ppo_update(
+            env, cfg, state.policy, state.value, state.opt, trajs, returns, sign, schedule
+        )
+    n, tables = env.num_agents, exact_voi.game_tables(env)
+    states = exact_voi.state_one_hot(trajs.obs, tables)
+    return tabular.ppo_update(
+        _modules(env, cfg),
+        cfg,
+        tables,
+        state.policy,
+        state.value,
+        state.opt,
+        states.reshape(-1, states.shape[-1]),
+        jnp.moveaxis(trajs.actions, 2, 0).reshape(n, -1),
+        jnp.moveaxis(returns, 2, 0).reshape(n, -1),
+        trajs.valid.reshape(-1),
+        sign,
+        schedule,
+    )
+
+
+def batch_metrics(trajs: Trajectory, reciprocal, voi) -> dict:
+    """Per agent, means over the batch's valid steps: its reciprocal reward, the VoI it
+    exerts on and receives from the others, and the share of steps on which it played
+    action 0 (IPD: cooperate)."""
+    valid = trajs.valid.astype(jnp.float32)
+    count = jnp.maximum(valid.sum(), 1.0)
+
+    def mean(x):  # [E, T, N] -> [N]
+        return jnp.sum(x * valid[..., None], axis=(0, 1)) / count
+
+    return {
+        "train/reciprocal_reward": mean(reciprocal),
+        "train/voi_given": mean(voi.sum(-1)),
+        "train/voi_received": mean(voi.sum(-2)),
+        "train/action_0_rate": mean(trajs.actions == 0),
+    }
+
+
+def adversary_turn(env, cfg, attack, state: ReciprocatorState, policy, trajs, voi, success):
+    """A learning attack's step in place of the adversary's PPO update, from its view of the
+    batch at the updated `policy` (attack hook: adversary_step).
+
+    Returns:
+        (policy with the adversary's row replaced, attack state, attack metrics); unchanged
+        without that hook.
+    """
+    if "adversary_step" not in attack.hooks:
+        return policy, state.attack_state, {}
+    view = adversary_view(env, cfg, attack, policy, trajs, voi, success, state.iteration)
+    own, attack_state, attack_metrics = attack.adversary_step(
+        state.attack_state, attack_key(state.key), view
+    )
+    return with_agent_row(policy, attack.adversary, own.policy), attack_state, attack_metrics
 
 
 def adversary_view(env, cfg, attack, policy, trajs, voi, success, iteration) -> AdversaryView:
