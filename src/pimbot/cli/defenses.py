@@ -40,10 +40,7 @@ def chunk_logger(path: str | Path | None, run_config, key_file: str | Path | Non
         return None
     import dataclasses
 
-    import flax.serialization
-    import jax
-
-    from pimbot.defenses.audit import AuditError, AuditLog, digest_bytes, writer_key
+    from pimbot.defenses.audit import AuditError, AuditLog, writer_key
     from pimbot.envs.core import InvalidParameter
 
     path = Path(path)
@@ -57,50 +54,51 @@ def chunk_logger(path: str | Path | None, run_config, key_file: str | Path | Non
         raise InvalidParameter(str(error)) from None
 
     def on_chunk(done: int, states, rows: list[dict]) -> None:
-        host = jax.device_get(states)
-        seeds = sorted({int(r["seed"]) for r in rows})
-        policy = [
-            digest_bytes(
-                flax.serialization.to_bytes(jax.tree.map(lambda x, s=s: x[s], host.policy))
-            )
-            for s in range(len(seeds))
-        ]
-        incentive = getattr(host, "incentive", None)
-        incentive_digests = (
-            [
-                digest_bytes(
-                    flax.serialization.to_bytes(jax.tree.map(lambda x, s=s: x[s], incentive))
-                )
-                for s in range(len(seeds))
-            ]
-            if incentive is not None
-            else []
-        )
-        latest = [r for r in rows if int(r["iteration"]) == done]
-        transfers = {
-            str(r["seed"]): {
-                k.removeprefix("eval/"): r[k]
-                for k in r
-                if k.startswith(("eval/given/", "eval/received/"))
-            }
-            for r in latest
-        }
-        log.append(
-            "update",
-            iteration=done,
-            seeds=seeds,
-            policy_sha256=policy,
-            incentive_sha256=incentive_digests,
-            incentives_at_eval=transfers,
-            defense_events={
-                k: sum(float(r[k]) for r in rows)
-                for k in (rows[0] if rows else {})
-                if k.startswith("defense/")
-            },
-        )
+        log.append("update", **_update_record(done, states, rows))
 
     on_chunk.log = log  # type: ignore[attr-defined]
     return on_chunk
+
+
+def _update_record(done: int, states, rows: list[dict]) -> dict:
+    """An audit log's `update` record after `done` iterations: each seed's policy and
+    incentive parameter digests, the incentives at the latest evaluation, the defense events."""
+    import flax.serialization
+    import jax
+
+    from pimbot.defenses.audit import digest_bytes
+
+    host = jax.device_get(states)
+    seeds = sorted({int(r["seed"]) for r in rows})
+
+    def digests(params) -> list[str]:
+        return [
+            digest_bytes(flax.serialization.to_bytes(jax.tree.map(lambda x, s=s: x[s], params)))
+            for s in range(len(seeds))
+        ]
+
+    incentive = getattr(host, "incentive", None)
+    latest = [r for r in rows if int(r["iteration"]) == done]
+    transfers = {
+        str(r["seed"]): {
+            k.removeprefix("eval/"): r[k]
+            for k in r
+            if k.startswith(("eval/given/", "eval/received/"))
+        }
+        for r in latest
+    }
+    return dict(
+        iteration=done,
+        seeds=seeds,
+        policy_sha256=digests(host.policy),
+        incentive_sha256=digests(incentive) if incentive is not None else [],
+        incentives_at_eval=transfers,
+        defense_events={
+            k: sum(float(r[k]) for r in rows)
+            for k in (rows[0] if rows else {})
+            if k.startswith("defense/")
+        },
+    )
 
 
 def _jsonable(value):

@@ -1,4 +1,5 @@
-"""What each `pimbot` command does, given its parsed command object (`pimbot.cli.commands`)."""
+"""What each `pimbot` command does, given its parsed command object (`pimbot.cli.commands`:
+each command's `run` calls its function here, in `listing`, `defenses` or `robot`)."""
 
 from __future__ import annotations
 
@@ -7,8 +8,6 @@ from pathlib import Path
 
 from pimbot import jax_setup
 from pimbot.cli import defenses as defense_cli
-from pimbot.cli import robot as robot_cli
-from pimbot.cli.listing import print_attacks, print_envs, print_learners
 from pimbot.cli.parsing import UsageError
 
 
@@ -57,23 +56,16 @@ def check_writable(name: str, path: Path, *, directory: bool) -> None:
         raise UsageError(f"{name}: cannot create {path}: {parent} is not writable")
 
 
-def cmd_train(args) -> int:
-    from pimbot.training import memory, runner, store
+def _run_config(args):
+    """The `RunConfig` of the train options (InvalidParameter/UsageError on bad input)."""
     from pimbot.training.config import (
         RunConfig,
         parse_attack_params,
         parse_env_params,
         parse_hparams,
-        resolve,
     )
 
-    if args.out is None:
-        raise UsageError("--out: required: the run directory (or --from RUN_DIR to rerun one)")
-    if args.attack_param and args.attack is None:
-        raise UsageError("attack_param: given without --attack NAME (see `pimbot attacks`)")
-    log = _log_backends(args)
-
-    run = RunConfig(
+    return RunConfig(
         env_id=args.env_id,
         env_params=parse_env_params(args.env_id, list(args.env_params)),
         learner=args.learner,
@@ -89,6 +81,19 @@ def cmd_train(args) -> int:
         ),
         defenses=defense_cli.run_defenses(args),
     )
+
+
+def cmd_train(args) -> int:
+    from pimbot.training import memory, runner, store
+    from pimbot.training.config import resolve
+
+    jax_setup.enable_compilation_cache()
+    if args.out is None:
+        raise UsageError("--out: required: the run directory (or --from RUN_DIR to rerun one)")
+    if args.attack_param and args.attack is None:
+        raise UsageError("attack_param: given without --attack NAME (see `pimbot attacks`)")
+    log = _log_backends(args)
+    run = _run_config(args)
     out = Path(args.out)
     check_writable("out", out, directory=True)
     if args.audit_log is not None:
@@ -98,18 +103,27 @@ def cmd_train(args) -> int:
     with store.locked(out):
         if args.restart:
             store.clear_run(out)
-        runner.check_run_dir(out, resolved)  # nothing written on a bad command
+        resolved, log = runner.check(resolved, out, log)  # nothing written on a bad command
         on_chunk = defense_cli.chunk_logger(args.audit_log, run, args.audit_key)
         result = runner.train(
-            run,
+            resolved,
             args.out,
             progress=not args.quiet,
             chunk_iterations=args.chunk_iterations,
             on_chunk=on_chunk,
             log=log,
+            checked=True,
         )
     if on_chunk is not None:
         print(f"audit log {args.audit_log}: head {on_chunk.log.last_hash}")
+    _print_result(result)
+    return 0
+
+
+def _print_result(result) -> None:
+    """`RUN_DIR: success …, return ratio …, converged seeds …` (a damaged summary fails)."""
+    from pimbot.training import store
+
     final = result.summary.get("final") if isinstance(result.summary, dict) else None
     if not isinstance(final, dict) or "eval/success" not in final:
         raise UsageError(
@@ -126,7 +140,6 @@ def cmd_train(args) -> int:
         + (f", median convergence {conv['median']:.0f} it" if conv["median"] is not None else "")
     )
     print(f"{result.run_dir}: " + ", ".join(parts))
-    return 0
 
 
 def _finished_runs(paths: list[str]):
@@ -160,6 +173,7 @@ def cmd_profile(args) -> int:
     from pimbot.profiling import CONTROLLERS, ProfileConfig, profile, samplers
     from pimbot.training.config import parse_env_params
 
+    jax_setup.enable_compilation_cache()
     check_writable("out", Path(args.out), directory=True)
     config = ProfileConfig(
         env_id=args.env,
@@ -287,36 +301,3 @@ def cmd_report(args) -> int:
         raise UsageError(str(error)) from None
     print(f"wrote {out / report.MARKDOWN} and {out / report.HTML}")
     return 0
-
-
-def dispatch(path: tuple[str, ...], command, loaded: tuple[str, ...]) -> int:
-    """Runs a parsed command; plugins are loaded, so the registries are complete."""
-    listings = {
-        ("envs",): print_envs,
-        ("learners",): print_learners,
-        ("attacks",): print_attacks,
-        ("defenses",): defense_cli.cmd_defenses,
-    }
-    if path in listings:
-        return listings[path]()
-    if path == ("audit", "verify"):
-        return defense_cli.cmd_audit(command)
-    if path == ("robot", "eval"):
-        return robot_cli.cmd_eval(command)
-    if path == ("robot", "render"):
-        return robot_cli.cmd_render(command)
-    if path == ("table",):
-        return cmd_table(command)
-    if path == ("plot",):
-        return cmd_plot(command)
-    if path == ("profile",):
-        jax_setup.enable_compilation_cache()
-        return cmd_profile(command)
-    if path == ("reproduce",):
-        return cmd_reproduce(command, loaded)
-    if path == ("sweep",):
-        return cmd_sweep(command, loaded)
-    if path == ("report",):
-        return cmd_report(command)
-    jax_setup.enable_compilation_cache()
-    return cmd_train(command)

@@ -14,13 +14,13 @@ def _first_line(obj) -> str:
 
 
 def print_envs() -> int:
-    from pimbot import envs
+    from pimbot import envs, learners
 
     for env_id in envs.registered():
         entry = envs.spec(env_id)
         print(f"{env_id}: {entry.description}")
         print("\n".join(describe(entry.constructor, entry.parameters())))
-        for learner, params in entry.learner_env_defaults.items():
+        for learner, params in learners.declared_env_params(env_id).items():
             values = ", ".join(f"{k}={v!r}" for k, v in params.items())
             print(f"    with --learner {learner} (unless given): {values}")
     return 0
@@ -49,9 +49,7 @@ def print_learners() -> int:
             if changed:
                 values = ", ".join(f"{k}={v!r}" for k, v in changed.items())
                 print(f"    on {env_id} (declared by the environment): {values}")
-            env_params = envs.spec(env_id).learner_env_defaults.get(
-                definition.env_defaults_of or name, {}
-            )
+            env_params = definition.default_env_params(envs.spec(env_id))
             if env_params:
                 values = ", ".join(f"{k}={v!r}" for k, v in env_params.items())
                 print(f"    on {env_id}, env parameters unless given: {values}")
