@@ -18,8 +18,8 @@ import pytest
 from scipy import stats
 
 from pimbot import statistics
-from pimbot.analysis import judging, report, runs, verdicts
-from pimbot.analysis.document import Claim, Section
+from pimbot.analysis import claims, judging, runs, verdicts
+from pimbot.analysis.claims import Claim
 from pimbot.analysis.sections import attack_claims, reciprocators, stag_hunt
 from pimbot.analysis.tables import difference, estimate
 
@@ -130,7 +130,6 @@ def test_verdict_vocabulary():
         verdicts.inconclusive("")
     wrong = verdicts.refuted(verdicts.SPEC, "0.2 < 0.8")
     assert wrong.label == "refuted — cause: our spec" and str(wrong).endswith("0.2 < 0.8")
-    assert verdicts.from_text("not reproduced").label.startswith("refuted — cause: not classified")
     parts = {"a": verdicts.reproduced("1"), "b": verdicts.inconclusive("2"), "c": wrong}
     assert verdicts.combine(parts).kind == verdicts.REFUTED
     assert verdicts.combine({"a": verdicts.reproduced(), "b": verdicts.at_budget("x")}).kind == (
@@ -356,14 +355,17 @@ def test_claims_table_at_the_quick_budget():
     ]
     learning = Claim("C3", "c", "r", "m", verdicts.refuted(verdicts.IMPLEMENTATION, "0.3"))
     rules = Claim("C4", "d", "r", "m", verdicts.refuted(verdicts.PAPER_ENVIRONMENT, "idle"))
-    sections = [Section("s", claims=[learning, rules])]
-    rows = {c.id: c for c in report.claims_table(sections, {"suite": "quick", "jobs": jobs})}
+    rows = {
+        c.id: c for c in claims.suite_claims([learning, rules], {"suite": "quick", "jobs": jobs})
+    }
     assert rows["C3"].judged.kind == verdicts.INCONCLUSIVE
     assert rows["C3"].judged.label == "inconclusive (too few seeds or iterations) (quick budget)"
     assert rows["C4"].judged.kind == verdicts.REFUTED
     assert rows["C1"].judged.kind == verdicts.NOT_RUN  # no section judged it
     jobs[0]["status"] = "failed"
-    rows = {c.id: c for c in report.claims_table(sections, {"suite": "quick", "jobs": jobs})}
+    rows = {
+        c.id: c for c in claims.suite_claims([learning, rules], {"suite": "quick", "jobs": jobs})
+    }
     assert any(c.judged.kind == verdicts.NOT_RUN for c in rows.values())
 
 

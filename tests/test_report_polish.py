@@ -16,8 +16,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pimbot.analysis import document, plots, report, runs, verdicts
-from pimbot.analysis.document import Claim, Section
+from pimbot.analysis import document, html_report, markdown_report, plots, report, runs, verdicts
+from pimbot.analysis.claims import Claim
+from pimbot.analysis.curves import read_curves
+from pimbot.analysis.document import Report, Section
+from pimbot.analysis.tables import Table
 from pimbot.suites import sweep
 
 SEEDS = 2
@@ -160,7 +163,9 @@ def test_one_colour_per_condition_in_every_figure(suite, built):
 def test_verdict_kinds_are_styled_and_marked(built):
     claims = [
         Claim("C1", "a", "r", "m", verdicts.at_quick_budget(verdicts.reproduced())),
-        Claim("C2", "b", "r", "long measured text", "not reproduced", summary="short"),
+        Claim(
+            "C2", "b", "r", "long measured text", verdicts.refuted(verdicts.BUDGET, "x"), "short"
+        ),
         Claim("C3", "c", "r", "m", verdicts.inconclusive("3 seeds")),
         Claim("C4", "d", "r", "m", verdicts.not_run("0/1 runs finished")),
         Claim("C5", "e", "r", "m", verdicts.refuted(verdicts.SPEC, "0.2 < 0.8")),
@@ -169,9 +174,9 @@ def test_verdict_kinds_are_styled_and_marked(built):
             "C7", "g", "r", "m", verdicts.inconclusive("; ".join(f"part {k}" for k in range(99)))
         ),
     ]
-    assert [document.verdict_kind(c.verdict) for c in claims] == [
+    assert [c.verdict.kind for c in claims] == [
         "reproduced",
-        "refuted",  # a section's old two-word text: refuted, its cause unclassified
+        "refuted",
         "inconclusive",
         "not-run",
         "refuted",
@@ -179,15 +184,16 @@ def test_verdict_kinds_are_styled_and_marked(built):
         "inconclusive",
     ]
     provenance = Section("Provenance", tables=[])
-    provenance.tables = [report.Table(["a"], [], "x"), report.Table(["a"], [], "y")]
-    rendered = report.Report({"jobs": [{"claims": ["C1"], "status": "finished"}]},
-                             provenance, claims, [])  # fmt: skip
-    page = report.render_html(rendered, built)
+    provenance.tables = [Table(["a"], [], "x"), Table(["a"], [], "y")]
+    rendered = Report({"jobs": [{"claims": ["C1"], "status": "finished"}]},
+                      provenance, claims, [])  # fmt: skip
+    page = html_report.render(rendered, built)
     for kind in verdicts.KINDS:
         assert f"class='verdict {kind}'" in page
         assert f".{kind} {{" in page  # its own style
-    markdown = report.render_markdown(rendered)
-    assert "**✔ reproduced (quick budget)**" in markdown and "**✘ not reproduced** — " in markdown
+    markdown = markdown_report.render(rendered)
+    assert "**✔ reproduced (quick budget)**" in markdown
+    assert "**✘ refuted — cause: our budget or setting** — x" in markdown
     assert "◐ inconclusive (too few seeds or iterations)** — 3 seeds" in markdown
     assert "○ not run" in markdown
     assert "**✘ refuted — cause: our spec** — 0.2 < 0.8" in markdown
@@ -207,8 +213,9 @@ def test_verdict_kinds_are_styled_and_marked(built):
 
 
 def test_a_panel_without_data_is_dropped_and_an_empty_figure_not_written(suite, tmp_path):
-    with_steps = types.SimpleNamespace(path=suite / "attacks/er21_clean")
-    without = types.SimpleNamespace(path=write_run(tmp_path, "g/no_steps", None, steps=False))
+    with_steps = types.SimpleNamespace(curves=read_curves(suite / "attacks/er21_clean"))
+    no_steps = write_run(tmp_path, "g/no_steps", None, steps=False)
+    without = types.SimpleNamespace(curves=read_curves(no_steps))
     path = tmp_path / "steps.png"
     assert not plots.curve_panels([("A", [(without, "clean", "#000000")])], "eval/steps", "", path)
     assert not path.exists() and not path.with_suffix(".svg").exists()
@@ -225,3 +232,68 @@ def test_counts_and_iterations_text():
     assert document.iterations_text(4000) == "4k iterations"
     assert document.iterations_text(400) == "400 iterations"  # never "0k"
     assert document.iterations_text([5000, 10000]) == "5k–10k iterations"
+
+
+def test_every_run_is_read_once_into_the_run_table(suite, tmp_path, monkeypatch):
+    """metrics.csv is read by the run table (and by `summarize`, which recomputes the
+    summary from it), never again by a section or a figure."""
+    from collections import Counter
+
+    from pimbot.training import store
+
+    reads: Counter = Counter()
+    read = store.read_metrics
+
+    def counted(run_dir):
+        reads[Path(run_dir).resolve()] += 1
+        return read(run_dir)
+
+    monkeypatch.setattr(store, "read_metrics", counted)
+    report.write_report(suite, tmp_path / "report")
+    mine = {path: n for path, n in reads.items() if suite.resolve() in path.parents}
+    assert len(mine) == 4 and set(mine.values()) == {2}, mine  # curves + summarize
+    assert max(reads.values()) == 2  # the original code's packaged logs too
+
+
+def test_legends_sit_outside_the_axes_and_say_what_the_bands_are(suite, tmp_path, monkeypatch):
+    figures = {}
+    save = plots.save
+
+    def kept(fig, path, *args, **kwargs):
+        save(fig, path, *args, **kwargs)
+        figures[path.name] = fig
+
+    monkeypatch.setattr(plots, "save", kept)
+    monkeypatch.setattr(plots.plt, "close", lambda fig: None)  # kept to be measured below
+    out = report.write_report(suite, tmp_path / "report")
+    runs_of_suite = [suite / "attacks/er21_clean", suite / "attacks/er21_reverse"]
+    plots.plot_runs(runs_of_suite, tmp_path / "plot.png")  # `pimbot plot`
+    curves = {"fig1_success.png", "fig2_agent_returns.png", "fig3_steps.png"}
+    curves |= {"mygrid_success.png", "plot.png"}
+    assert curves <= set(figures), sorted(figures)
+    for name, fig in figures.items():
+        renderer = fig.canvas.get_renderer()
+        assert all(ax.get_legend() is None for ax in fig.axes), name
+        (legend,) = fig.legends
+        box = legend.get_window_extent(renderer)
+        assert not any(box.overlaps(ax.get_window_extent(renderer)) for ax in fig.axes), name
+        labels = [text.get_text() for text in legend.get_texts()]
+        assert (name not in curves) or "band: min–max over 2 seeds" in labels, (name, labels)
+    monkeypatch.undo()
+    for fig in figures.values():
+        plots.plt.close(fig)
+    markdown = (out / report.MARKDOWN).read_text()
+    for caption in ("Fig. 1:", "Fig. 2:", "Fig. 3:", "mygrid: success per condition"):
+        line = next(line for line in markdown.splitlines() if line.startswith(f"*{caption}"))
+        assert "band: min–max over 2 seeds" in line, line
+
+
+def test_band_text_names_the_interval_and_the_seeds():
+    assert plots.band_text([("range", 3), ("range", 3)]) == "band: min–max over 3 seeds"
+    assert plots.band_text([("ci", 5), ("ci", 7)]) == (
+        "band: 95 % BCa bootstrap CI of the mean over 5–7 seeds"
+    )
+    assert plots.band_text([("range", 2), ("ci", 5)], "error bar") == (
+        "error bar: 95 % BCa bootstrap CI of the mean over 5 seeds; min–max over 2 seeds"
+    )
+    assert plots.band_text([]) == ""

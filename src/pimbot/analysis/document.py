@@ -1,4 +1,5 @@
-"""What a report section is: text, tables, figures and the claims it judges.
+"""What a report is: its sections (text, tables, figures and the claims they judge) and
+the `Report` the renderers lay out.
 
 A section provider is a function `(RunTable, Context) -> Section | None`; it
 returns None when its runs are absent, and claims (`Context.claim`) the runs it
@@ -12,10 +13,9 @@ import re
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
+from pimbot.analysis.claims import Claim, comparison_table, is_paper_suite
 from pimbot.analysis.runs import RunRecord, RunTable
 from pimbot.analysis.tables import Table
-from pimbot.analysis.verdicts import KINDS, MARKERS, Verdict, from_text
-from pimbot.statistics import MIN_SEEDS_FOR_CI
 from pimbot.training.summary import FINAL_WINDOW
 
 FIGURES = "figures"
@@ -37,45 +37,6 @@ class Figure:
         return slug(self.path.stem)
 
 
-@dataclasses.dataclass(frozen=True)
-class Comparison:
-    """One number of a claim as the paper states it, as the original code's logs give it and
-    as pimbot measures it, at one horizon (both logs read by the same metric code)."""
-
-    quantity: str
-    horizon: str
-    paper: str
-    original: str | None
-    """None: no original-code log covers it (written "no log")."""
-    pimbot: str | None
-
-
-@dataclasses.dataclass
-class Claim:
-    id: str
-    claim: str
-    rule: str
-    measured: str
-    """Every number the verdict was judged on (the claims CSV and the details list)."""
-    verdict: Verdict | str
-    """A `Verdict`; plain text from a section that predates the vocabulary is read by
-    `verdicts.from_text`."""
-    summary: str = ""
-    """A short form of `measured` for the claims table (empty: `measured` is short)."""
-    numbers: list[Comparison] = dataclasses.field(default_factory=list)
-    """The paper | original code | pimbot rows of the claim."""
-    jobs_of: str = ""
-    """The suite claim whose jobs feed it ("C1" for C1a and C1b); empty: its id."""
-
-    @property
-    def judged(self) -> Verdict:
-        return self.verdict if isinstance(self.verdict, Verdict) else from_text(self.verdict)
-
-    @property
-    def suite_claim(self) -> str:
-        return self.jobs_of or self.id
-
-
 @dataclasses.dataclass
 class Section:
     title: str
@@ -93,8 +54,9 @@ class Context:
     claimed: set[str] = dataclasses.field(default_factory=set)
     """Names of the runs a section has reported."""
 
-    def figure(self, name: str, caption: str) -> tuple[Path, Figure]:
-        """(where to save the PNG, the Figure that links it)."""
+    def figure(self, name: str, caption: str = "") -> tuple[Path, Figure]:
+        """(where to save the PNG, the Figure that links it). A caption that says what the
+        drawing found (its bands) is set once the figure is drawn."""
         path = self.out / FIGURES
         path.mkdir(parents=True, exist_ok=True)
         return path / name, Figure(Path(FIGURES) / name, caption)
@@ -106,26 +68,23 @@ class Context:
 Provider = Callable[[RunTable, Context], Section | None]
 
 
-def verdict(ok: bool) -> str:
-    """The old two-word verdict, for a section not yet on `analysis.verdicts` (it reads as
-    refuted with its cause unclassified); new rules build a `Verdict`."""
-    return "reproduced" if ok else "not reproduced"
+@dataclasses.dataclass
+class Report:
+    """The whole report: its provenance, the suite's claims table and the sections."""
 
+    index: dict
+    provenance: Section
+    claims: list[Claim]
+    sections: list[Section]
 
-VERDICTS = {kind: MARKERS[kind] for kind in KINDS}
-"""Verdict kind (its CSS class) -> the marker written before the verdict in Markdown and HTML."""
+    @property
+    def kind(self) -> str:
+        return "reproduction" if is_paper_suite(self.index) else "sweep"
 
-
-def verdict_kind(verdict: Verdict | str) -> str:
-    """The kind of a verdict (its CSS class); text is read by `verdicts.from_text`."""
-    return (verdict if isinstance(verdict, Verdict) else from_text(verdict)).kind
-
-
-def marked_verdict(verdict: Verdict | str) -> str:
-    """The verdict's label with its kind's marker in front: "✘ refuted — cause: …"."""
-    judged = verdict if isinstance(verdict, Verdict) else from_text(verdict)
-    label = judged.label if isinstance(verdict, Verdict) else verdict
-    return f"{judged.marker} {label}"
+    @property
+    def numbers(self) -> Table | None:
+        """The claims' paper | original code | pimbot table (None: no claim states one)."""
+        return comparison_table(self.claims)
 
 
 # --- counts read from the runs ----------------------------------------------------------
@@ -167,16 +126,6 @@ def final_window_text(records: Iterable[RunRecord]) -> str:
         (int(r.summary.get("final_window_evals", FINAL_WINDOW)) for r in records),
         "evaluation points",
     )
-
-
-def band_text(records: Iterable[RunRecord]) -> str:
-    """What a figure's bands are, from the seed counts of its runs."""
-    counts = {r.seeds for r in records}
-    if all(n >= MIN_SEEDS_FOR_CI for n in counts):
-        return "95 % BCa bootstrap band"
-    if all(n < MIN_SEEDS_FOR_CI for n in counts):
-        return "band: min–max over seeds"
-    return f"band: 95 % BCa bootstrap at ≥ {MIN_SEEDS_FOR_CI} seeds, min–max below"
 
 
 def slug(text: str) -> str:

@@ -1,102 +1,26 @@
-"""What the claim rules measure on runs: per-seed curves, values at a horizon, convergence at
-equal horizons, interval tests, what an environment's rules make impossible, and the cause
-of a disagreement.
+"""What the claim rules measure on runs: convergence at equal horizons, interval tests,
+what an environment's rules make impossible, and the cause of a disagreement.
 
-Pure functions of run directories (metrics.csv, config.json) and of the registered
-environments; the sections turn their results into `Claim`s.
+Pure functions of measured values (a run's `analysis.curves.Curves`, estimates over seeds)
+and of the registered environments; the sections turn their results into `Claim`s.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
-from pathlib import Path
 
 import numpy as np
 
 from pimbot.analysis import verdicts
-from pimbot.analysis.tables import Estimate, estimate
+from pimbot.analysis.tables import Estimate
 from pimbot.analysis.verdicts import Verdict
 from pimbot.statistics import MIN_SEEDS_FOR_CI, difference_p_value
-from pimbot.training import store
-from pimbot.training.summary import FINAL_WINDOW, convergence_point
 
 PAPER_ATTACK_BUDGET = 25_000
-"""PIMbot ran its ER attacks for 20–25k iterations (spec/experiments.md)."""
+"""PIMbot ran its ER attacks for 20–25k iterations (docs/experiments.md)."""
 
 
-# --- curves -----------------------------------------------------------------------------
-
-
-@dataclasses.dataclass(frozen=True)
-class Curves:
-    """One run's evaluation rows per seed: iterations [E] and every column's values [E]."""
-
-    seeds: tuple[int, ...]
-    iterations: dict[int, np.ndarray]
-    values: dict[int, dict[str, np.ndarray]]
-
-    @property
-    def horizon(self) -> int:
-        """The last iteration every seed reached."""
-        return int(min(its[-1] for its in self.iterations.values()))
-
-    def has(self, column: str) -> bool:
-        return bool(self.seeds) and column in self.values[self.seeds[0]]
-
-    def final(self, column: str, until: int | None = None) -> np.ndarray:
-        """Per seed, the mean of the last FINAL_WINDOW evaluations at or before `until`
-        (None: the whole run); [] where the column is absent."""
-        if not self.has(column):
-            return np.array([])
-        out = []
-        for seed in self.seeds:
-            keep = self.iterations[seed] <= (until if until is not None else np.inf)
-            out.append(float(self.values[seed][column][keep][-FINAL_WINDOW:].mean()))
-        return np.array(out)
-
-    def first(self, column: str) -> np.ndarray:
-        """Per seed, the first evaluation of `column`."""
-        if not self.has(column):
-            return np.array([])
-        return np.array([float(self.values[s][column][0]) for s in self.seeds])
-
-    def early_peak(self, column: str, fraction: float) -> float | None:
-        """The highest seed-mean value over the first `fraction` of the horizon."""
-        if not self.has(column):
-            return None
-        until = self.horizon * fraction
-        mean = np.mean(
-            [self.values[s][column][self.iterations[s] <= until] for s in self.seeds], axis=0
-        )
-        return float(mean.max()) if mean.size else None
-
-    def convergence(self, column: str, until: int) -> tuple[list, list]:
-        """(strict, first crossing) iteration per seed of `column` cut at `until`, None where
-        never: the spec's criterion (smoothed over 10 evaluations, stays ≥ 0.9) and the first
-        point the smoothed curve reaches 0.9."""
-        strict, first = [], []
-        for seed in self.seeds:
-            keep = self.iterations[seed] <= until
-            c, f = convergence_point(self.iterations[seed][keep], self.values[seed][column][keep])
-            strict.append(c)
-            first.append(f)
-        return strict, first
-
-
-def read_curves(run_dir: Path) -> Curves:
-    rows = store.read_metrics(Path(run_dir))
-    seeds = tuple(sorted({int(r["seed"]) for r in rows}))
-    iterations, values = {}, {}
-    for seed in seeds:
-        mine = sorted(
-            (r for r in rows if int(r["seed"]) == seed), key=lambda r: int(r["iteration"])
-        )
-        iterations[seed] = np.array([int(r["iteration"]) for r in mine])
-        values[seed] = {
-            k: np.array([float(r[k]) for r in mine]) for k in mine[0] if k not in ("seed",)
-        }
-    return Curves(seeds, iterations, values)
+# --- convergence ------------------------------------------------------------------------
 
 
 def median_iteration(values: list) -> float | None:
@@ -217,7 +141,3 @@ def disagreement(
     return verdicts.refuted(
         verdicts.PAPER_CODE, f"{reason}; the original code's logs agree with pimbot"
     )
-
-
-def per_seed_estimate(values: np.ndarray, digits: int = 3, signed: bool = False):
-    return estimate(values, digits, signed) if np.size(values) else None

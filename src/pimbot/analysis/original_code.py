@@ -18,7 +18,7 @@ packaged under `ROOT` as ``<group>/<setting>/`` with ``<group>`` = the game and 
 - ``metrics.csv``: one row per evaluation point and seed, pimbot's column names
   (``iteration``, ``seed``, ``eval/success``, ``eval/return_ratio``, ``eval/return_env/
   agent_i`` …), so pimbot's own metric code (`pimbot.training.summary.summarize`,
-  `pimbot.analysis.runs.load_table`, `pimbot.analysis.curves.load_curve`) reads it
+  `pimbot.analysis.runs.load_table`, `pimbot.analysis.curves.read_curves`) reads it
   unchanged. Every evaluation point of every distinct log is kept (nothing is
   downsampled); a log that stops before its configured horizon is left out and listed.
 - ``summary.json``: pimbot's `summarize` of the directory.
@@ -407,17 +407,6 @@ def write_run_dir(
 
 def write_manifest(root: Path, content: dict[str, Any]) -> None:
     store.write_json(Path(root) / MANIFEST, content)
-
-
-def describe(run_dir: Path) -> str:
-    """One line: the run, its seeds and merged copies, final success / return ratio."""
-    info, summary = original_info(run_dir), summarize(run_dir)
-    final = summary["final"]
-    parts = [f"{len(summary['seeds'])} distinct logs", f"{info['copies_merged']} copies merged"]
-    for column in ("eval/success", "eval/return_ratio"):
-        if column in final:
-            parts.append(f"{column.split('/')[-1]} {final[column]['mean']:.3f}")
-    return f"{Path(run_dir).parent.name}/{Path(run_dir).name}: " + ", ".join(parts)
 
 
 __all__ = [

@@ -1,8 +1,14 @@
-"""Figures from run directories: mean learning curves with their bands over seeds (95 % BCa
-bootstrap at ≥ 5 seeds, the min–max range below; pimbot.statistics)."""
+"""Figures from runs: mean learning curves with their bands over seeds (95 % BCa bootstrap
+at ≥ 5 seeds, the min–max range below; pimbot.statistics).
+
+Every figure says what its bands are on the figure itself (`band_text`, an entry of its
+legend) and keeps its legends outside the axes (`legend_below`), so no legend covers a
+curve.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -10,9 +16,18 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
+from matplotlib.patches import Patch  # noqa: E402
 
-from pimbot.analysis.curves import columns, load_curve, mean_and_band  # noqa: E402
-from pimbot.analysis.runs import RunRecord, condition_key, env_label  # noqa: E402
+from pimbot import statistics  # noqa: E402
+from pimbot.analysis.curves import Curves, read_curves  # noqa: E402
+from pimbot.analysis.document import count_text  # noqa: E402
+from pimbot.analysis.runs import (  # noqa: E402
+    RunRecord,
+    condition_key,
+    condition_label,
+    env_label,
+)
 from pimbot.training import store  # noqa: E402
 
 RANDOM_POLICY = {
@@ -23,22 +38,82 @@ RANDOM_POLICY = {
     "SH(3)": {"eval/stag_captures": 0.0028},
     "SH(4)": {"eval/stag_captures": 1.2e-4},
 }
-"""A uniformly random team, simulated (spec/experiments.md; the Stag Hunt capture rates of
+"""A uniformly random team, simulated (docs/experiments.md; the Stag Hunt capture rates of
 the original rules as measured for issue 14: N hares, the stag moving before the capture
 check), by env label."""
 
 
-def band(ax, run_dir: Path, column: str, label=None, color=None, lw=1.2, style="-") -> None:
-    """One run's mean curve of `column` over seeds and its band (`mean_and_band`)."""
-    iterations, values = load_curve(run_dir, column)
-    mean, lo, hi = mean_and_band(values)
+BAND_ALPHA = 0.15
+"""Opacity of a band; its legend entry is drawn in grey at the same opacity."""
+
+
+def band(
+    ax, curves: Curves, column: str, label=None, color=None, lw=1.2, style="-"
+) -> tuple[str, int]:
+    """One run's mean curve of `column` over seeds and its band (statistics.band); returns
+    what the band is: its kind (statistics.CI or RANGE) and the seeds it is over."""
+    iterations, values = curves.matrix(column)
+    mean, lo, hi, kind = statistics.band(values)
     (line,) = ax.plot(iterations, mean, style, label=label, color=color, lw=lw)
-    ax.fill_between(iterations, lo, hi, color=line.get_color(), alpha=0.15, lw=0)
+    ax.fill_between(iterations, lo, hi, color=line.get_color(), alpha=BAND_ALPHA, lw=0)
+    return kind, len(curves.seeds)
 
 
-def has_curve(run_dir: Path, column: str) -> bool:
-    """Whether the run logged `column` (a panel of it would not be empty)."""
-    return column in columns(run_dir)
+def band_text(drawn: Iterable[tuple[str, int]], what: str = "band") -> str:
+    """What a figure's bands (or error bars: `what`) are, from the (kind, seeds) of every
+    one it drew: "band: 95 % BCa bootstrap CI of the mean over N seeds", "band: min–max
+    over N seeds", or both ("" where none was drawn)."""
+    seeds: dict[str, set[int]] = {}
+    for kind, count in drawn:
+        seeds.setdefault(kind, set()).add(count)
+    parts = []
+    if statistics.CI in seeds:
+        ci = count_text(seeds[statistics.CI], "seeds")
+        parts.append(f"95 % BCa bootstrap CI of the mean over {ci}")
+    if statistics.RANGE in seeds:
+        parts.append(f"min–max over {count_text(seeds[statistics.RANGE], 'seeds')}")
+    return f"{what}: " + "; ".join(parts) if parts else ""
+
+
+def band_handle(text: str):
+    """The legend entry that says what the bands are (a grey band)."""
+    return Patch(facecolor="0.35", alpha=2 * BAND_ALPHA, lw=0, label=text)
+
+
+def _legend_key(handle, label: str) -> tuple:
+    if isinstance(handle, Line2D):
+        return label, handle.get_color(), handle.get_linestyle(), handle.get_marker()
+    return (label,)
+
+
+def legend_below(fig, axes: Iterable, extra: Iterable = (), title: str | None = None) -> None:
+    """One legend for the whole figure, under its panels (never over a curve): every
+    labelled artist of `axes` once (the same label, colour and style in several panels is
+    one entry), then the `extra` handles (a band's meaning). Nothing without entries."""
+    extra = list(extra)
+    entries: dict[tuple, tuple[Any, str]] = {}
+    for ax in axes:
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            entries.setdefault(_legend_key(handle, label), (handle, label))
+    handles = [h for h, _ in entries.values()] + list(extra)
+    labels = [label for _, label in entries.values()] + [h.get_label() for h in extra]
+    if not handles:
+        return
+    width = max(len(label) for label in labels)
+    # columns that fit the figure's width: 8 pt text, a generous 7 pt per character of the
+    # longest label and 40 pt for its handle and spacing (a wider legend would be cut off)
+    fits = max(1, int(fig.get_figwidth() * 72 / (7 * width + 40)))
+    fig.legend(
+        handles,
+        labels,
+        loc="lower center",
+        bbox_to_anchor=(0.5, 0.0),
+        ncol=min(len(handles), fits),
+        fontsize=8,
+        title=title,
+        title_fontsize=8,
+        frameon=False,
+    )
 
 
 def runs_of(runs: list[RunRecord], env: str) -> list[RunRecord]:
@@ -61,41 +136,47 @@ def curve_panels(
     cols: int | None = None,
     ylim: tuple[float, float] | None = None,
     title: str = "",
-) -> bool:
-    """One panel per (title, lines); a line is (run record, label, colour), drawn with its
-    band. A panel whose title has a random-team value for `column` gets a reference line.
+) -> str:
+    """One panel per (title, lines); a line is (run record, label, colour[, line style]),
+    drawn with its band. A panel whose title has a random-team value for `column` gets a
+    reference line. One legend under the panels names the lines and what the bands are.
 
     Lines of runs that did not log `column` are left out, a panel left with none is
-    dropped, and with no panel at all nothing is written: returns whether it was."""
+    dropped, and with no panel at all nothing is written. Returns the bands' meaning
+    (`band_text`), "" where nothing was written."""
     panels = [
         (name, kept)
         for name, lines in panels
-        if (kept := [line for line in lines if has_curve(line[0].path, column)])
+        if (kept := [line for line in lines if line[0].curves.has(column)])
     ]
     if not panels:
-        return False
+        return ""
     cols = min(cols or len(panels), len(panels))
     rows = (len(panels) + cols - 1) // cols
     fig, axes = plt.subplots(rows, cols, figsize=(5.2 * cols, 3.8 * rows), squeeze=False)
+    drawn, extra = [], []
+    random_team = Line2D([], [], color="grey", ls=":", lw=1, label="random team")
     for ax, (name, lines) in zip(axes.flat, panels, strict=False):
         for run, label, color, *style in lines:
-            band(ax, run.path, column, label, color, style=style[0] if style else "-")
+            drawn.append(band(ax, run.curves, column, label, color, style=(style or ["-"])[0]))
         reference = RANDOM_POLICY.get(name, {}).get(column)
         if reference is not None:
-            ax.axhline(reference, color="grey", ls=":", lw=1, label="random team")
+            ax.axhline(reference, color="grey", ls=":", lw=1)
+            extra = [random_team]  # named once, after the runs
         ax.set_title(name)
         ax.set_xlabel("iteration")
         ax.set_ylabel(ylabel)
         if ylim:
             ax.set_ylim(*ylim)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
     for ax in list(axes.flat)[len(panels) :]:
         ax.remove()
     if title:
         fig.suptitle(title)
+    bands = band_text(drawn)
+    legend_below(fig, axes.flat[: len(panels)], [*extra, band_handle(bands)])
     save(fig, path)
-    return True
+    return bands
 
 
 def mark_zero_bars(ax, xs, heights, color) -> None:
@@ -108,11 +189,17 @@ def mark_zero_bars(ax, xs, heights, color) -> None:
             )  # fmt: skip
 
 
-def save(fig, path: Path, dpi: int = 110, svg: bool = True, top: float = 0.0) -> None:
+def save(fig, path: Path, dpi: int = 110, svg: bool = True) -> None:
     """Writes the figure as `path` (PNG) and, with `svg`, as the SVG beside it (same name,
-    .svg: the report's vector copy of every figure). `top`: inches kept free above the
-    axes (a figure-wide legend)."""
-    fig.tight_layout(rect=(0, 0, 1, 1 - top / fig.get_figheight()))
+    .svg: the report's vector copy of every figure). A figure-wide legend (`legend_below`)
+    gets a strip of its own under the panels: the figure grows by its height."""
+    below = 0.0
+    if fig.legends:
+        renderer = fig.canvas.get_renderer()
+        below = max(legend.get_window_extent(renderer).height for legend in fig.legends)
+        below = below / fig.dpi + 0.05  # inches
+        fig.set_figheight(fig.get_figheight() + below)
+    fig.tight_layout(rect=(0, below / fig.get_figheight(), 1, 1))
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=dpi)
     if svg:
@@ -124,9 +211,14 @@ def save(fig, path: Path, dpi: int = 110, svg: bool = True, top: float = 0.0) ->
 
 
 def run_label(run_dir: Path) -> str:
+    """ "lio ER(2,1) reverse": learner, env and condition (the attack and the parameters
+    the run set), then what else tells runs of one setting apart."""
     config = store.read_json(run_dir / store.CONFIG)
+    identity = config["identity"]
     env = env_label(config["env"]["id"], config["env"]["params"])
-    label = f"{config['identity']['learner']} {env}"
+    given = config.get("run_config", {}).get("attack_params", ())
+    condition = condition_label(identity["attack"], identity["attack_params"], given)
+    label = f"{identity['learner']} {env} {condition}"
     first, count = config["identity"]["first_seed"], config["identity"]["seeds"]
     if first:
         label += f" seeds {first}–{first + count - 1}"
@@ -150,16 +242,19 @@ def incentive_updates(config: dict[str, Any]) -> str | None:
 
 
 def plot_runs(run_dirs: list[Path], out: Path, columns=("eval/success", "eval/return_ratio")):
-    """One panel per metric column, one line (mean ± 95 % band over seeds) per run."""
+    """`pimbot plot`: one panel per metric column, one line per run (its mean over seeds
+    and its band, in one colour in every panel; a run that did not log a column is left
+    out of its panel). The legend under the panels names the runs and what the bands are."""
+    runs = [(read_curves(run_dir), run_label(run_dir)) for run_dir in run_dirs]
     fig, axes = plt.subplots(1, len(columns), figsize=(6 * len(columns), 4), squeeze=False)
+    drawn = []
     for ax, column in zip(axes[0], columns, strict=True):
-        for run_dir in run_dirs:
-            try:
-                band(ax, run_dir, column, run_label(run_dir))
-            except ValueError:
-                continue
+        for k, (curves, label) in enumerate(runs):
+            if curves.has(column):
+                drawn.append(band(ax, curves, column, label, f"C{k % 10}"))
         ax.set_xlabel("iteration")
         ax.set_ylabel(column)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
+    bands = band_text(drawn)
+    legend_below(fig, axes[0], [band_handle(bands)] if bands else [])
     save(fig, out, dpi=120, svg=False)

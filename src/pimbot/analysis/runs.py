@@ -1,8 +1,11 @@
-"""The table of training runs of a suite directory: one `RunRecord` per run, loaded once.
+"""The runs of a suite directory, loaded once: one `RunRecord` per training run (its
+config.json, its summary recomputed from metrics.csv by `training.summary.summarize`, and
+metrics.csv itself read into `Curves`) and the summaries of the robot and profile jobs, in
+one `RunTable`.
 
-Every report section reads this table. Labels are derived from each run's
-config.json, never looked up in a list: the condition is the attack's name and
-the parameters the run set explicitly (``admo_disrupt``,
+Every report section and figure reads this table; none opens a run's files again.
+Labels are derived from each run's config.json, never looked up in a list: the
+condition is the attack's name and the parameters the run set explicitly (``admo_disrupt``,
 ``fake_incentive(amount=10.0)``), the env is a short form of its id with its
 size parameters (``ER(4,2)``, ``IPD(2)``, ``SH(3)``), and defenses are their
 names joined by ``+``. So an attack, env or defense the report has never heard
@@ -20,6 +23,8 @@ from typing import Any
 
 import numpy as np
 
+from pimbot import learners
+from pimbot.analysis.curves import Curves, read_curves
 from pimbot.attacks import CONDITION_ORDER
 from pimbot.training import store
 from pimbot.training.summary import summarize
@@ -30,6 +35,10 @@ PIMBOT = "pimbot"
 ORIGINAL_CODE = "original code"
 SIZE_PARAMS = ("n_agents", "n_players", "min_at_lever")
 """Env parameters written in the env label, in this order: ER(n_agents,min_at_lever)."""
+PROFILE_RUN = "profile/er21_paired"
+"""The paired profile's job directory (its summary.json: `RunTable.profile`)."""
+ROBOT_SUMMARIES = "robot/*/summary.json"
+"""The robot evaluations' summaries (`RunTable.robot`)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -51,6 +60,8 @@ class RunRecord:
     defenses: str
     seeds: int
     iterations: int
+    curves: Curves = dataclasses.field(compare=False, repr=False)
+    """metrics.csv, read once: every column per seed."""
 
     @property
     def group(self) -> str:
@@ -100,18 +111,22 @@ class RunRecord:
 
 @dataclasses.dataclass(frozen=True)
 class RunTable:
-    """Every finished training run of a suite, and one colour per condition."""
+    """Every finished run of a suite, and one colour per condition."""
 
     records: tuple[RunRecord, ...]
     original: tuple[RunRecord, ...] = ()
     """Runs converted from the original code's logs (source "original code"): the claims'
     original-code column, never a section's own rows."""
+    robot: tuple[dict[str, Any], ...] = ()
+    """The robot evaluations' summary.json files, in path order."""
+    profile: dict[str, Any] | None = None
+    """The paired profile's summary.json (None: no finished profile)."""
 
     def original_for(
         self,
         env: str,
         condition: str,
-        learner: str = "lio",
+        learner: str = learners.DEFAULT_LEARNER,
         horizon: int | None = None,
         attack: str | None = None,
     ) -> RunRecord | None:
@@ -264,6 +279,7 @@ def load_record(suite_dir: Path, name: str) -> RunRecord:
     config = store.read_json(path / store.CONFIG)
     identity, run = config["identity"], config["run_config"]
     summary = {**store.read_json(path / store.SUMMARY), **summarize(path)}
+    curves = read_curves(path)
     return RunRecord(
         name=name,
         path=path,
@@ -278,6 +294,7 @@ def load_record(suite_dir: Path, name: str) -> RunRecord:
         defenses=defense_label(run.get("defenses", ())),
         seeds=len(summary["seeds"]),
         iterations=int(summary["iterations"]),
+        curves=curves,
     )
 
 
@@ -288,13 +305,20 @@ def _is_training_run(path: Path) -> bool:
     return isinstance(config, dict) and "identity" in config and "run_config" in config
 
 
-def load_table(suite_dir: Path, index: dict | None = None) -> RunTable:
-    """Every finished training run under `suite_dir` (`<group>/<setting>/` directories).
+def read_profile(suite_dir: Path) -> dict[str, Any] | None:
+    """The paired profile's summary.json under `suite_dir` (None: none finished)."""
+    path = Path(suite_dir) / PROFILE_RUN / store.SUMMARY
+    return store.read_json(path) if path.exists() else None
 
-    Jobs the index lists with another kind (profiles, robot evaluations) are skipped;
-    finished run directories the index does not list are read too. Run directories
-    converted from the original code's logs (config.json "source": "original code") are
-    kept apart, in `RunTable.original`.
+
+def load_table(suite_dir: Path, index: dict | None = None) -> RunTable:
+    """Every finished run under `suite_dir` (`<group>/<setting>/` directories).
+
+    Jobs the index lists with another kind (profiles, robot evaluations) are not training
+    runs: their summaries are `RunTable.profile` and `RunTable.robot`; finished run
+    directories the index does not list are read too. Run directories converted from the
+    original code's logs (config.json "source": "original code") are kept apart, in
+    `RunTable.original`.
     """
     suite_dir = Path(suite_dir)
     other_kinds = {
@@ -309,4 +333,6 @@ def load_table(suite_dir: Path, index: dict | None = None) -> RunTable:
     return RunTable(
         tuple(r for r in loaded if r.source != ORIGINAL_CODE),
         tuple(r for r in loaded if r.source == ORIGINAL_CODE),
+        tuple(store.read_json(p) for p in sorted(suite_dir.glob(ROBOT_SUMMARIES))),
+        read_profile(suite_dir),
     )

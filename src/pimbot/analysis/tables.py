@@ -94,20 +94,14 @@ def markdown_lines(table: Table, level: int = 3) -> list[str]:
     return lines + [""]
 
 
-def html_table(table: Table, cell_class=None, level: int = 3) -> str:
-    """`cell_class(column, text)` may return a CSS class for a cell."""
+def html_table(table: Table, level: int = 3) -> str:
     parts = [f"<h{level}>{html.escape(table.title)}</h{level}>"] if table.title else []
     parts += [f"<p>{html.escape(table.note)}</p>"] if table.note else []
     head = "".join(f"<th>{html.escape(h)}</th>" for h in table.header)
-    body = []
-    for row in table.rows:
-        cells = []
-        for i, cell in enumerate(row):
-            text = fmt(cell)
-            cls = cell_class(i, text) if cell_class else None
-            attr = f' class="{cls}"' if cls else ""
-            cells.append(f"<td{attr}>{html.escape(text)}</td>")
-        body.append("<tr>" + "".join(cells) + "</tr>")
+    body = [
+        "<tr>" + "".join(f"<td>{html.escape(fmt(cell))}</td>" for cell in row) + "</tr>"
+        for row in table.rows
+    ]
     return "".join(parts) + f"<table><tr>{head}</tr>{''.join(body)}</table>"
 
 

@@ -35,8 +35,6 @@ PAPER_ENVIRONMENT = "the paper (contradicts its own environment)"
 PAPER_METRIC = "the paper (contradicts its own metric)"
 PAPER_CODE = "the paper (contradicts its own code)"
 CAUSES = (IMPLEMENTATION, BUDGET, SPEC, PAPER_ENVIRONMENT, PAPER_METRIC, PAPER_CODE)
-UNCLASSIFIED = "not classified (its section predates the causes)"
-"""Only for a plain-text verdict of an old section (`from_text`); never written by a rule."""
 BUDGET_FREE = (PAPER_ENVIRONMENT, PAPER_METRIC, PAPER_CODE)
 """Causes that no amount of seeds or iterations changes."""
 
@@ -72,7 +70,7 @@ class Verdict:
             raise ValueError(f"verdict kind {self.kind!r} not in {KINDS}")
         if self.kind == REFUTED and not self.causes:
             raise ValueError("a refuted verdict needs a cause")
-        if any(c not in (*CAUSES, UNCLASSIFIED) for c in self.causes):
+        if any(c not in CAUSES for c in self.causes):
             raise ValueError(f"verdict causes {self.causes} not all in {CAUSES}")
         if self.kind in (REFUTED, INCONCLUSIVE) and not self.reason:
             raise ValueError(f"a {self.kind} verdict needs a reason")
@@ -140,17 +138,3 @@ def at_quick_budget(verdict: Verdict) -> Verdict:
     if verdict.kind == NOT_RUN:
         return verdict
     return dataclasses.replace(verdict, qualifier="quick budget")
-
-
-def from_text(text: str) -> Verdict:
-    """A verdict written as plain text by a section that predates this vocabulary:
-    "reproduced…" is reproduced, "not run…" and "inconclusive…" keep their kind; anything
-    else ("not reproduced") is refuted with the cause UNCLASSIFIED (a section to update)."""
-    lowered = text.lower().strip()
-    if lowered.startswith("reproduced"):
-        return reproduced()
-    if lowered.startswith("not run"):
-        return not_run(text)
-    if lowered.startswith("inconclusive"):
-        return inconclusive(text)
-    return Verdict(REFUTED, f"its section wrote {text!r}", (UNCLASSIFIED,))

@@ -19,13 +19,13 @@ group's LIO runs (and the original code's runs where its logs cover a setting).
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import numpy as np
 
 from pimbot.analysis import judging, verdicts
-from pimbot.analysis.document import Claim, Comparison, count_text
-from pimbot.analysis.judging import PAPER_ATTACK_BUDGET, Curves, iteration_text
+from pimbot.analysis.claims import Claim, Comparison
+from pimbot.analysis.document import count_text
+from pimbot.analysis.judging import PAPER_ATTACK_BUDGET, iteration_text
 from pimbot.analysis.runs import CLEAN, RunRecord, RunTable
 from pimbot.analysis.tables import Estimate, Table, difference, estimate
 from pimbot.analysis.verdicts import Verdict
@@ -47,21 +47,14 @@ ADMO_ATTACKS = ("admo", "admo_code")
 
 @dataclasses.dataclass
 class Runs:
-    """The attack group's LIO runs by (env label, condition), curves read once each."""
+    """The attack group's LIO runs by (env label, condition)."""
 
     table: RunTable
     by: dict[tuple[str, str], RunRecord]
-    curves: dict[Path, Curves] = dataclasses.field(default_factory=dict)
-    """Curves read so far, by run directory (pimbot's and the original code's)."""
     reachable_cache: dict[tuple, bool] = dataclasses.field(default_factory=dict)
 
     def get(self, env: str, condition: str) -> RunRecord | None:
         return self.by.get((env, condition))
-
-    def of(self, run: RunRecord) -> Curves:
-        if run.path not in self.curves:
-            self.curves[run.path] = judging.read_curves(run.path)
-        return self.curves[run.path]
 
     def original(self, env: str, condition: str, horizon: int | None = None) -> RunRecord | None:
         run = self.get(env, condition)
@@ -80,10 +73,10 @@ class Runs:
         """The paper | original code | pimbot row of `column`'s final value: pimbot's run and
         the original code's log of the same env and condition, both cut at their common
         horizon (≤ `until`); and the original's value (None without a log)."""
-        ours = self.of(run)
+        ours = run.curves
         limit = min(ours.horizon, until if until is not None else ours.horizon)
         original = self.original(run.env, run.condition, limit)
-        theirs = self.of(original) if original is not None else None
+        theirs = original.curves if original is not None else None
         if theirs is None or not theirs.has(column):
             value = estimate(ours.final(column, limit), **fmt)
             text = None if original is None else "not logged"
@@ -107,13 +100,13 @@ class Runs:
         """Per seed (per log), `column`'s final value of `run` and of the original code's
         log of the same env and condition, both at their common horizon (≤ `until`); None
         for the original without a log that has the column."""
-        ours = self.of(run)
+        ours = run.curves
         limit = min(ours.horizon, until)
         log = self.original(run.env, run.condition, limit)
-        if log is None or not self.of(log).has(column):
+        if log is None or not log.curves.has(column):
             return ours.final(column, limit), None
-        common = min(limit, self.of(log).horizon)
-        return ours.final(column, common), self.of(log).final(column, common)
+        common = min(limit, log.curves.horizon)
+        return ours.final(column, common), log.curves.final(column, common)
 
     def success_reachable(self, run: RunRecord) -> bool:
         """Whether the env's rules let the others succeed with `run`'s adversary idle."""
@@ -183,7 +176,7 @@ def c1b(data: Runs) -> Claim:
         if clean is None or selfish is None:
             parts[env] = _missing()
             continue
-        a, b = data.of(clean), data.of(selfish)
+        a, b = clean.curves, selfish.curves
         column = "eval/return_ratio" if a.has("eval/return_ratio") else "eval/success"
         horizon = min(a.horizon, b.horizon)
         strict_a, first_a = a.convergence(column, horizon)
@@ -242,7 +235,7 @@ def _speed_rows(data: Runs, env, column, ours, horizon, paper) -> list[Compariso
     """paper | original code | pimbot rows of both speed criteria, clean → self-centered, at
     the horizon pimbot's two runs and the original code's two logs share."""
     logs = [data.original(env, c, horizon) for c in (CLEAN, "self_centered")]
-    theirs = [data.of(r) if r is not None else None for r in logs]
+    theirs = [r.curves if r is not None else None for r in logs]
     usable = all(t is not None and t.has(column) for t in theirs)
     common = min([horizon] + ([t.horizon for t in theirs] if usable else []))
     rows = []
@@ -278,7 +271,7 @@ def c2(data: Runs) -> Claim:
         if run is None:
             parts[env] = _missing()
             continue
-        curves = data.of(run)
+        curves = run.curves
         final = estimate(run.per_seed("eval/success"))
         peak = curves.early_peak("eval/success", EARLY_FRACTION)
         text = f"early peak {peak:.2f}, final {final}"
@@ -305,10 +298,10 @@ def _original_c2(data: Runs, run: RunRecord) -> bool | None:
     """Whether the original code's log meets C2's rule (early peak, then ~0) up to the
     horizon it shares with `run`; None without a log."""
     log = data.original(run.env, run.condition, run.iterations)
-    if log is None or not data.of(log).has("eval/success"):
+    if log is None or not log.curves.has("eval/success"):
         return None
-    curves = data.of(log)
-    common = min(curves.horizon, data.of(run).horizon)
+    curves = log.curves
+    common = min(curves.horizon, run.curves.horizon)
     peak = curves.early_peak("eval/success", EARLY_FRACTION * common / curves.horizon)
     final = curves.final("eval/success", common).mean()
     return peak is not None and peak >= EARLY_PEAK and final <= LOW
@@ -365,6 +358,68 @@ def c3(data: Runs) -> Claim:
 # --- C4 ---------------------------------------------------------------------------------
 
 
+@dataclasses.dataclass(frozen=True)
+class Reverse:
+    """C4's measurement of one env's reverse run."""
+
+    at_budget: Verdict
+    """The rule at the paper's budget."""
+    longer: Verdict | None
+    """The rule at the end of a run longer than the paper's budget (None: not longer)."""
+    line: str
+    """The measured values, for the claim's text."""
+    late: str | None
+    """The change of success after the paper's budget (None: not longer)."""
+    number: Comparison
+
+
+def reverse(data: Runs, env: str, run: RunRecord) -> Reverse:
+    """C4 in one env: success ~0 (≥ SOLVED in ER(4,2)) at the paper's budget and at the
+    end of our run; a refutation at the budget is classified by the original code's log."""
+    curves = run.curves
+    want_low = env != "ER(4,2)"
+    budget = estimate(curves.final("eval/success", PAPER_ATTACK_BUDGET))
+    full = estimate(curves.final("eval/success"))
+    rule = f"≤ {LOW:g}" if want_low else f"≥ {SOLVED:g}"
+    cut = min(curves.horizon, PAPER_ATTACK_BUDGET)
+    longer_run = curves.horizon > PAPER_ATTACK_BUDGET
+
+    def holds(e):
+        return e.mean <= LOW if want_low else e.mean >= SOLVED
+
+    line = f"{env}: at {cut:,} it {budget}" + (
+        f", at {curves.horizon:,} it {full}" if longer_run else ""
+    )
+    if curves.horizon < PAPER_ATTACK_BUDGET and not holds(budget):
+        at_budget = verdicts.inconclusive(
+            f"{curves.horizon:,} it < the paper's {PAPER_ATTACK_BUDGET:,}: {budget}"
+        )
+    elif holds(budget):
+        at_budget = verdicts.reproduced(f"{budget} at {cut:,} it")
+    else:
+        ours, original = data.finals(run, "eval/success", cut)
+        agrees = None if original is None else bool(holds(estimate(original)))
+        at_budget = judging.disagreement(
+            f"{budget} at {cut:,} it, not {rule}", agrees, ours, original
+        )
+    longer = late = None
+    if longer_run:
+        rise = full.mean - budget.mean
+        late = f"{env} {rise:+.3f} from {cut:,} to {curves.horizon:,} it"
+        longer = (
+            verdicts.reproduced(f"{full} at {curves.horizon:,} it")
+            if holds(full)
+            else verdicts.refuted(
+                verdicts.BUDGET,
+                f"{full} at our {curves.horizon:,} it, not {rule}: a late change of "
+                f"{rise:+.3f} after the paper's {PAPER_ATTACK_BUDGET:,}",
+            )
+        )
+    claimed = "0" if want_low else "solved"
+    number = data.compare(f"{env} reverse success", claimed, run, "eval/success", cut)[0]
+    return Reverse(at_budget, longer, line, late, number)
+
+
 def c4(data: Runs) -> list[Claim]:
     at_budget, longer, numbers, lines, late = {}, {}, [], [], []
     for env in ROOMS:
@@ -372,46 +427,13 @@ def c4(data: Runs) -> list[Claim]:
         if run is None:
             at_budget[env] = _missing()
             continue
-        curves = data.of(run)
-        want_low = env != "ER(4,2)"
-        budget = estimate(curves.final("eval/success", PAPER_ATTACK_BUDGET))
-        full = estimate(curves.final("eval/success"))
-        rule = f"≤ {LOW:g}" if want_low else f"≥ {SOLVED:g}"
-        cut = min(curves.horizon, PAPER_ATTACK_BUDGET)
-
-        def holds(e, want_low=want_low):
-            return e.mean <= LOW if want_low else e.mean >= SOLVED
-
-        lines.append(
-            f"{env}: at {cut:,} it {budget}"
-            + (f", at {curves.horizon:,} it {full}" if curves.horizon > PAPER_ATTACK_BUDGET else "")
-        )
-        if curves.horizon < PAPER_ATTACK_BUDGET and not holds(budget):
-            at_budget[env] = verdicts.inconclusive(
-                f"{curves.horizon:,} it < the paper's {PAPER_ATTACK_BUDGET:,}: {budget}"
-            )
-        elif holds(budget):
-            at_budget[env] = verdicts.reproduced(f"{budget} at {cut:,} it")
-        else:
-            ours, original = data.finals(run, "eval/success", cut)
-            agrees = None if original is None else bool(holds(estimate(original)))
-            at_budget[env] = judging.disagreement(
-                f"{budget} at {cut:,} it, not {rule}", agrees, ours, original
-            )
-        if curves.horizon > PAPER_ATTACK_BUDGET:
-            rise = full.mean - budget.mean
-            late.append(f"{env} {rise:+.3f} from {cut:,} to {curves.horizon:,} it")
-            longer[env] = (
-                verdicts.reproduced(f"{full} at {curves.horizon:,} it")
-                if holds(full)
-                else verdicts.refuted(
-                    verdicts.BUDGET,
-                    f"{full} at our {curves.horizon:,} it, not {rule}: a late change of "
-                    f"{rise:+.3f} after the paper's {PAPER_ATTACK_BUDGET:,}",
-                )
-            )
-        claimed = "0" if want_low else "solved"
-        numbers.append(data.compare(f"{env} reverse success", claimed, run, "eval/success", cut)[0])
+        measured = reverse(data, env, run)
+        at_budget[env] = measured.at_budget
+        lines.append(measured.line)
+        numbers.append(measured.number)
+        if measured.longer is not None:
+            longer[env] = measured.longer
+            late.append(measured.late)
     main = verdicts.combine(at_budget)
     if main.kind == verdicts.REPRODUCED and any(
         v.kind == verdicts.REFUTED for v in longer.values()
@@ -473,69 +495,18 @@ def admo_parts(data: Runs, attack: str) -> tuple[dict[str, Verdict], list]:
     single = len({mode_of(r) for r in mine}) == 1
     parts, rows = {}, []
     for env in ROOMS:
+        base = data.get(env, CLEAN)
         for run in sorted((r for r in mine if r.env == env), key=lambda r: r.condition):
-            mode, condition, base = mode_of(run), run.condition, data.get(env, CLEAN)
             if base is None:
                 continue
-            margin = estimate(run.per_seed("eval/adversary_margin_env"), 2, signed=True)
-            own, own_gain = exit_success_margin(run, base)
-            d_success = difference(run.per_seed("eval/success"), base.per_seed("eval/success"))
-            steps, clean_steps = (
-                float(run.per_seed("eval/steps").mean()),
-                float(base.per_seed("eval/steps").mean()),
-            )
-            rows.append(
-                [
-                    env,
-                    condition,
-                    run.seeds,
-                    margin,
-                    own,
-                    own_gain,
-                    d_success,
-                    f"{steps:.2f} ({(steps - clean_steps) / clean_steps:+.0%})",
-                ]
-            )
-            if mode == "stealthy" or single:
-                parts[f"{env} {condition} margin"] = judging.above(
-                    margin, 0.0, "margin"
-                ) or verdicts.refuted(verdicts.IMPLEMENTATION, f"margin {margin} not above 0")
-                parts[f"{env} {condition} own success"] = (
-                    judging.above(own_gain, 0.0, "exit success − clean per-agent mean")
-                    if own_gain is not None
-                    else verdicts.inconclusive("per-agent exit success not logged by these runs")
-                )
-                if parts[f"{env} {condition} own success"] is None:
-                    parts[f"{env} {condition} own success"] = verdicts.refuted(
-                        verdicts.IMPLEMENTATION,
-                        f"own exit success {own} not above the clean per-agent mean "
-                        f"(difference {own_gain})",
-                    )
-            if mode == "disrupt" and not data.success_reachable(run):
-                parts[f"{env} {condition} disrupts"] = (
-                    verdicts.reproduced(f"Δ success {d_success}")
-                    if d_success.hi < 0
-                    else verdicts.refuted(
-                        verdicts.IMPLEMENTATION,
-                        f"non-redundant task, Δ success {d_success} not below 0",
-                    )
-                )
-            change = abs(steps - clean_steps) / clean_steps
-            if mode == "disrupt" and not single:
-                continue  # the paper's ADMO raises its own gain: steps judged on that mode
-            parts[f"{env} {condition} steps"] = (
-                verdicts.reproduced(f"steps {change:.0%} from clean")
-                if change <= MODEST
-                else verdicts.refuted(
-                    verdicts.IMPLEMENTATION, f"steps change {change:.0%} > {MODEST:.0%}"
-                )
-            )
+            row, judged = admo_run(data, run, base, single)
+            rows.append(row)
+            parts.update(judged)
     for run in sorted((r for r in mine if r.env == "IPD(2)"), key=lambda r: r.condition):
-        condition = run.condition
-        curves = data.of(run)
+        curves = run.curves
         change = estimate(curves.final("eval/success") - curves.first("eval/success"), signed=True)
         flat = change.lo >= -FLAT and change.hi <= FLAT
-        parts[f"IPD {condition} flat"] = (
+        parts[f"IPD {run.condition} flat"] = (
             verdicts.reproduced(f"cooperation change {change}")
             if flat
             else verdicts.refuted(
@@ -543,6 +514,59 @@ def admo_parts(data: Runs, attack: str) -> tuple[dict[str, Verdict], list]:
             )
         )
     return parts, rows
+
+
+def admo_run(
+    data: Runs, run: RunRecord, base: RunRecord, single: bool
+) -> tuple[list, dict[str, Verdict]]:
+    """One ER ADMO run against its env's clean run: (its table row, its C5 parts). The
+    margin and own-success parts judge the stealthy mode, disruption the disrupt mode
+    where the task is non-redundant, steps the stealthy mode (every part where the attack
+    ran in one mode only)."""
+    mode, name = mode_of(run), f"{run.env} {run.condition}"
+    margin = estimate(run.per_seed("eval/adversary_margin_env"), 2, signed=True)
+    own, own_gain = exit_success_margin(run, base)
+    d_success = difference(run.per_seed("eval/success"), base.per_seed("eval/success"))
+    steps, clean_steps = (
+        float(run.per_seed("eval/steps").mean()),
+        float(base.per_seed("eval/steps").mean()),
+    )
+    row = [run.env, run.condition, run.seeds, margin, own, own_gain, d_success]
+    row.append(f"{steps:.2f} ({(steps - clean_steps) / clean_steps:+.0%})")
+    parts = {}
+    if mode == "stealthy" or single:
+        parts[f"{name} margin"] = judging.above(margin, 0.0, "margin") or verdicts.refuted(
+            verdicts.IMPLEMENTATION, f"margin {margin} not above 0"
+        )
+        if own_gain is None:
+            parts[f"{name} own success"] = verdicts.inconclusive(
+                "per-agent exit success not logged by these runs"
+            )
+        else:
+            parts[f"{name} own success"] = judging.above(
+                own_gain, 0.0, "exit success − clean per-agent mean"
+            ) or verdicts.refuted(
+                verdicts.IMPLEMENTATION,
+                f"own exit success {own} not above the clean per-agent mean "
+                f"(difference {own_gain})",
+            )
+    if mode == "disrupt" and not data.success_reachable(run):
+        parts[f"{name} disrupts"] = (
+            verdicts.reproduced(f"Δ success {d_success}")
+            if d_success.hi < 0
+            else verdicts.refuted(
+                verdicts.IMPLEMENTATION, f"non-redundant task, Δ success {d_success} not below 0"
+            )
+        )
+    if mode == "disrupt" and not single:
+        return row, parts  # the paper's ADMO raises its own gain: steps judged on that mode
+    change = abs(steps - clean_steps) / clean_steps
+    parts[f"{name} steps"] = (
+        verdicts.reproduced(f"steps {change:.0%} from clean")
+        if change <= MODEST
+        else verdicts.refuted(verdicts.IMPLEMENTATION, f"steps change {change:.0%} > {MODEST:.0%}")
+    )
+    return row, parts
 
 
 def c5(data: Runs) -> Claim:

@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from pimbot.analysis import plots
-from pimbot.analysis.curves import columns, load_curve
-from pimbot.analysis.document import Context, Section, band_text, final_window_text, seeds_text
+from pimbot.analysis.document import Context, Figure, Section, final_window_text, seeds_text
 from pimbot.analysis.runs import CLEAN, RunRecord, RunTable, condition_key, natural_key
 from pimbot.analysis.sections import attack_claims
 from pimbot.analysis.tables import INTERVAL, Table, difference, estimate, fmt
@@ -27,64 +26,67 @@ def section(table: RunTable, ctx: Context) -> Section | None:
     if not runs:
         return None
     ctx.claim(runs)
-    colors = table.colors
-    rows = results_rows(table, runs)
-    envs = sorted({r.env for r in runs}, key=natural_key)
-    teams = [e for e in envs if any(r.env == e and has_return_ratio(r) for r in runs)]
-    others = [e for e in envs if e not in teams]
-    out = Section("Attacks on LIO (C1–C5)", text=[intro(runs)])
-    panels = plots.condition_panels(runs, teams, colors)
-    seeds = seeds_text(runs)
-    if teams:
-        path, figure = ctx.figure(
-            "fig1_success.png",
-            f"Fig. 1: success vs iterations per ER config, clean and attacks (mean over {seeds}, "
-            f"{band_text(runs)}; dotted: a random team)",
-        )
-        if plots.curve_panels(panels, "eval/success", "success", path):
-            out.figures.append(figure)
-        path, figure = ctx.figure(
-            "fig2_agent_returns.png",
-            f"Fig. 2: per-agent env returns (mean over {seeds}); the adversary's curve is the "
-            "thick red one",
-        )
-        if fig_agent_returns(runs, teams, path):
-            out.figures.append(figure)
-        path, figure = ctx.figure(
-            "fig3_steps.png", f"Fig. 3: steps per episode (mean over {seeds})"
-        )
-        if plots.curve_panels(panels, "eval/steps", "steps per episode", path):
-            out.figures.append(figure)
-    if teams and any(r.condition == "self_centered" for r in runs):
-        path, figure = ctx.figure(
-            "fig4_convergence.png",
-            "Fig. 4: convergence per seed, clean vs self-centered",
-        )
-        if fig_convergence(runs, teams, colors, path):
-            out.figures.append(figure)
-    admo = [r for r in runs if ADMO_COLUMN in columns(r.path)]
-    admo_envs = [e for e in teams if any(r.env == e for r in admo)]
-    if admo_envs:
-        path, figure = ctx.figure(
-            "fig5_admo.png",
-            f"Fig. 5: ADMO vs LIO: success, margin, α1, c1/c2 (mean over {seeds_text(admo)})",
-        )
-        fig_admo(runs, admo, admo_envs, colors, path)
-        out.figures.append(figure)
-    if others:
-        path, figure = ctx.figure(
-            "fig1b_ipd_cooperation.png", f"Fig. 1b: IPD cooperation rate (mean over {seeds})"
-        )
-        panels = plots.condition_panels(runs, others, colors)
-        if plots.curve_panels(panels, "eval/success", "cooperation rate", path):
-            out.figures.append(figure)
-    out.tables = [convergence_table(runs), results_table(rows)]
+    out = Section("Attacks on LIO (C1–C5)", text=[intro(runs)], figures=figures(table, runs, ctx))
+    out.tables = [convergence_table(runs), results_table(results_rows(table, runs))]
     admo = attack_claims.admo_table(
         attack_claims.Runs(table, {(r.env, r.condition): r for r in runs})
     )
     if admo is not None:
         out.tables.append(admo)
     out.claims = attack_claims.claims(table, runs)
+    return out
+
+
+def figures(table: RunTable, runs: list[RunRecord], ctx: Context) -> list[Figure]:
+    """Figs. 1–5 of the team tasks (runs that log the return ratio) and Fig. 1b of the
+    others (the IPD); a figure without data is left out."""
+    colors, seeds = table.colors, seeds_text(runs)
+    envs = sorted({r.env for r in runs}, key=natural_key)
+    teams = [e for e in envs if any(r.env == e and has_return_ratio(r) for r in runs)]
+    others = [e for e in envs if e not in teams]
+    out = []
+    if teams:
+        panels = plots.condition_panels(runs, teams, colors)
+        path, figure = ctx.figure("fig1_success.png")
+        if bands := plots.curve_panels(panels, "eval/success", "success", path):
+            figure.caption = (
+                "Fig. 1: success vs iterations per ER config, clean and attacks (mean over "
+                f"{seeds}, {bands}; dotted: a random team)"
+            )
+            out.append(figure)
+        path, figure = ctx.figure("fig2_agent_returns.png")
+        if bands := fig_agent_returns(runs, teams, path):
+            figure.caption = (
+                f"Fig. 2: per-agent env returns (mean over {seeds}, {bands}); the adversary's "
+                "curve is the thick red one"
+            )
+            out.append(figure)
+        path, figure = ctx.figure("fig3_steps.png")
+        if bands := plots.curve_panels(panels, "eval/steps", "steps per episode", path):
+            figure.caption = f"Fig. 3: steps per episode (mean over {seeds}, {bands})"
+            out.append(figure)
+    if teams and any(r.condition == "self_centered" for r in runs):
+        path, figure = ctx.figure(
+            "fig4_convergence.png", "Fig. 4: convergence per seed, clean vs self-centered"
+        )
+        if fig_convergence(runs, teams, colors, path):
+            out.append(figure)
+    admo = [r for r in runs if r.curves.has(ADMO_COLUMN)]
+    admo_envs = [e for e in teams if any(r.env == e for r in admo)]
+    if admo_envs:
+        path, figure = ctx.figure("fig5_admo.png")
+        bands = fig_admo(runs, admo, admo_envs, colors, path)
+        figure.caption = (
+            f"Fig. 5: ADMO vs LIO: success, margin, α1, c1/c2 (mean over {seeds_text(admo)}, "
+            f"{bands})"
+        )
+        out.append(figure)
+    if others:
+        path, figure = ctx.figure("fig1b_ipd_cooperation.png")
+        panels = plots.condition_panels(runs, others, colors)
+        if bands := plots.curve_panels(panels, "eval/success", "cooperation rate", path):
+            figure.caption = f"Fig. 1b: IPD cooperation rate (mean over {seeds}, {bands})"
+            out.append(figure)
     return out
 
 
@@ -190,17 +192,18 @@ def agent_colour(agent: int) -> str:
     return AGENT_COLOURS[agent % len(AGENT_COLOURS)]
 
 
-def fig_agent_returns(runs: list[RunRecord], envs: list[str], path) -> bool:
+def fig_agent_returns(runs: list[RunRecord], envs: list[str], path) -> str:
     """Per-agent env return curves, one row per condition and one column per env; the
-    adversary of an attacked run is the thick red curve. One legend names every agent."""
+    adversary of an attacked run is the thick red curve. One legend under the panels
+    names every agent and what the bands are. Returns that ("" where nothing was drawn)."""
     cells = {
         (r.condition, r.env): r
         for r in runs
-        if r.env in envs and plots.has_curve(r.path, "eval/return_env/agent_0")
+        if r.env in envs and r.curves.has("eval/return_env/agent_0")
     }
     conditions = sorted({c for c, _ in cells}, key=condition_key)
     if not conditions:
-        return False
+        return ""
     fig, axes = plots.plt.subplots(
         len(conditions),
         len(envs),
@@ -208,47 +211,57 @@ def fig_agent_returns(runs: list[RunRecord], envs: list[str], path) -> bool:
         squeeze=False,
         sharex="col",
     )
-    agents, adversaries = 0, set()
+    drawn, agents, adversaries = [], 0, set()
     for i, cond in enumerate(conditions):
         for j, env in enumerate(envs):
-            ax = axes[i][j]
             run = cells.get((cond, env))
             if run is None:
-                ax.remove()
+                axes[i][j].remove()
                 continue
             agents = max(agents, run.num_agents)
-            for agent in range(run.num_agents):
-                adv = run.attack is not None and agent == run.adversary
-                if adv:
-                    adversaries.add(agent)
-                plots.band(
-                    ax,
-                    run.path,
-                    f"eval/return_env/agent_{agent}",
-                    None,
-                    ADVERSARY_COLOUR if adv else agent_colour(agent),
-                    lw=2.2 if adv else 0.9,
-                )
+            drawn += _agent_curves(axes[i][j], run, adversaries)
             rows = [k for k, c in enumerate(conditions) if (c, env) in cells]
             if i == rows[0]:
-                ax.set_title(env)
+                axes[i][j].set_title(env)
             if i == rows[-1]:
-                ax.set_xlabel("iteration")
-                ax.tick_params(labelbottom=True)
+                axes[i][j].set_xlabel("iteration")
+                axes[i][j].tick_params(labelbottom=True)
             if j == min(envs.index(e) for c, e in cells if c == cond):
-                ax.set_ylabel(f"{cond}\nenv return")
-            ax.grid(alpha=0.3)
+                axes[i][j].set_ylabel(f"{cond}\nenv return")
+            axes[i][j].grid(alpha=0.3)
     handles = [
-        plots.plt.Line2D([], [], color=agent_colour(a), lw=1.2, label=f"agent {a}")
+        plots.Line2D([], [], color=agent_colour(a), lw=1.2, label=f"agent {a}")
         for a in range(agents)
     ]
     handles += [
-        plots.plt.Line2D([], [], color=ADVERSARY_COLOUR, lw=2.4, label=f"agent {a} as adversary")
+        plots.Line2D([], [], color=ADVERSARY_COLOUR, lw=2.4, label=f"agent {a} as adversary")
         for a in sorted(adversaries)
     ]
-    fig.legend(handles=handles, loc="upper center", ncol=len(handles), fontsize=9, frameon=False)
-    plots.save(fig, path, dpi=100, top=0.45)
-    return True
+    bands = plots.band_text(drawn)
+    plots.legend_below(fig, [], handles + [plots.band_handle(bands)])
+    plots.save(fig, path, dpi=100)
+    return bands
+
+
+def _agent_curves(ax, run: RunRecord, adversaries: set) -> list[tuple[str, int]]:
+    """Every agent's env return curve of `run` in `ax` (the adversary's thick and red,
+    added to `adversaries`); the bands drawn."""
+    drawn = []
+    for agent in range(run.num_agents):
+        adv = run.attack is not None and agent == run.adversary
+        if adv:
+            adversaries.add(agent)
+        drawn.append(
+            plots.band(
+                ax,
+                run.curves,
+                f"eval/return_env/agent_{agent}",
+                None,
+                ADVERSARY_COLOUR if adv else agent_colour(agent),
+                lw=2.2 if adv else 0.9,
+            )
+        )
+    return drawn
 
 
 def fig_convergence(runs: list[RunRecord], envs: list[str], colors: dict, path) -> bool:
@@ -259,24 +272,7 @@ def fig_convergence(runs: list[RunRecord], envs: list[str], colors: dict, path) 
             run = next((r for r in runs if r.env == env and r.condition == cond), None)
             if run is None:
                 continue
-            conv = run.summary["convergence"]
-            points = 0
-            for key, marker in (("first_crossing_per_seed", "o"), ("per_seed", "s")):
-                values = [v for v in conv[key] if v is not None]
-                jitter = np.linspace(-0.12, 0.12, len(values)) + (0.18 if marker == "s" else -0.18)
-                x = len(labels) + jitter
-                ax.scatter(x, values, marker=marker, s=18, color=colors[cond], alpha=0.8)
-                points += len(values)
-            if not points:
-                ax.annotate(
-                    f"none of\n{run.seeds} seeds\nreached 0.9",
-                    (len(labels), 0.5),
-                    xycoords=("data", "axes fraction"),
-                    ha="center",
-                    va="center",
-                    fontsize=7,
-                    color="0.4",
-                )
+            _convergence_points(ax, run, len(labels), colors[cond])
             shown.append(cond)
             labels.append(f"{env}\n{cond}")
     if not labels:
@@ -289,47 +285,77 @@ def fig_convergence(runs: list[RunRecord], envs: list[str], colors: dict, path) 
     ax.title.set_fontsize(8)
     ax.grid(alpha=0.3)
     handles = [
-        plots.plt.Line2D([], [], ls="", marker="s", color=colors[c], label=c)
+        plots.Line2D([], [], ls="", marker="s", color=colors[c], label=c)
         for c in dict.fromkeys(shown)
     ]
-    ax.legend(handles=handles, fontsize=7)
+    plots.legend_below(fig, [], handles)
     plots.save(fig, path)
     return True
 
 
-def fig_admo(runs, admo: list[RunRecord], envs: list[str], colors: dict, path) -> None:
-    panels = [
-        ("eval/success", "success"),
-        ("eval/adversary_margin_env", "adversary env margin"),
-        ("admo/alpha_1", "α1 (incentive objective)"),
-        ("admo/c_1", "bounds c1 (solid), c2 (dashed)"),
-    ]
+def _convergence_points(ax, run: RunRecord, x: int, color: str) -> None:
+    """One run's per-seed first crossings (○, left) and strict convergence (□, right) at
+    `x`; a note where no seed reached 0.9."""
+    conv = run.summary["convergence"]
+    points = 0
+    for key, marker in (("first_crossing_per_seed", "o"), ("per_seed", "s")):
+        values = [v for v in conv[key] if v is not None]
+        jitter = np.linspace(-0.12, 0.12, len(values)) + (0.18 if marker == "s" else -0.18)
+        ax.scatter(x + jitter, values, marker=marker, s=18, color=color, alpha=0.8)
+        points += len(values)
+    if not points:
+        ax.annotate(
+            f"none of\n{run.seeds} seeds\nreached 0.9",
+            (x, 0.5),
+            xycoords=("data", "axes fraction"),
+            ha="center",
+            va="center",
+            fontsize=7,
+            color="0.4",
+        )
+
+
+ADMO_PANELS = (
+    ("eval/success", "success"),
+    ("eval/adversary_margin_env", "adversary env margin"),
+    ("admo/alpha_1", "α1 (incentive objective)"),
+    ("admo/c_1", "bounds c1 (solid), c2 (dashed)"),
+)
+"""Fig. 5's columns: (metric, panel title)."""
+
+
+def fig_admo(runs, admo: list[RunRecord], envs: list[str], colors: dict, path) -> str:
+    """Fig. 5: one row per env, one column per `ADMO_PANELS` metric, the ADMO runs and the
+    clean one; the legend under the panels. Returns what the bands are."""
     fig, axes = plots.plt.subplots(
-        len(envs), len(panels), figsize=(4.4 * len(panels), 3 * len(envs)), squeeze=False
+        len(envs), len(ADMO_PANELS), figsize=(4.4 * len(ADMO_PANELS), 3 * len(envs)), squeeze=False
     )
     shown = {r.name for r in admo} | {r.name for r in runs if r.condition == CLEAN}
+    drawn = []
     for i, env in enumerate(envs):
-        for j, (column, title) in enumerate(panels):
+        for j, (column, title) in enumerate(ADMO_PANELS):
             ax = axes[i][j]
-            drawn = [
+            lines = [
                 run
                 for run in plots.runs_of(runs, env)
                 if run.name in shown
                 and (run in admo or not column.startswith("admo/"))
-                and plots.has_curve(run.path, column)
+                and run.curves.has(column)
             ]
-            if not drawn:
+            if not lines:
                 ax.remove()
                 continue
-            for run in drawn:
-                plots.band(ax, run.path, column, run.condition, colors[run.condition])
-                if column == "admo/c_1" and plots.has_curve(run.path, "admo/c_2"):
-                    iterations, values = load_curve(run.path, "admo/c_2")
-                    ax.plot(iterations, values.mean(axis=0), ls="--", color=colors[run.condition])
+            for run in lines:
+                color = colors[run.condition]
+                drawn.append(plots.band(ax, run.curves, column, run.condition, color))
+                if column == "admo/c_1" and run.curves.has("admo/c_2"):
+                    iterations, values = run.curves.matrix("admo/c_2")
+                    ax.plot(iterations, values.mean(axis=0), ls="--", color=color)
             ax.set_title(f"{env}: {title}", fontsize=9)
             ax.grid(alpha=0.3)
             if i == len(envs) - 1:
                 ax.set_xlabel("iteration")
-            if j == 0:
-                ax.legend(fontsize=7)
+    bands = plots.band_text(drawn)
+    plots.legend_below(fig, fig.axes, [plots.band_handle(bands)])
     plots.save(fig, path, dpi=100)
+    return bands

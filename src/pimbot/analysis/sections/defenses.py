@@ -82,48 +82,46 @@ def collect(table: RunTable, defended: list[RunRecord]) -> dict:
     return cells
 
 
-def _column(rows: list[dict], name: str) -> np.ndarray:
-    return np.array([float(r[name]) for r in rows])
-
-
 def _first(its: np.ndarray, hits: np.ndarray) -> float:
     return its[np.argmax(hits > 0)] if (hits > 0).any() else np.inf
 
 
 def cell(run: RunRecord, until: int | None) -> dict:
-    """Per-seed final success, adversary env margin, convergence and defense counters."""
-    by_seed: dict[int, list[dict]] = {}
-    for row in store.read_metrics(run.path):
-        if until is None or int(row["iteration"]) <= until:
-            by_seed.setdefault(int(row["seed"]), []).append(row)
-    for rows in by_seed.values():
-        rows.sort(key=lambda r: int(r["iteration"]))
-    seeds = sorted(by_seed)
-    first = by_seed[seeds[0]]
-    curve = "eval/return_ratio" if "eval/return_ratio" in first[0] else "eval/success"
-    out: dict = {"seeds": seeds, "iterations": int(first[-1]["iteration"])}
-    for key, column in (("success", "eval/success"), ("margin", "eval/adversary_margin_env")):
-        out[key] = np.array([final_value(_column(by_seed[s], column)) for s in seeds])
+    """Per-seed final success, adversary env margin, convergence and defense counters, from
+    the evaluations at or before `until` (None: all)."""
+    curves = run.curves
+    kept = {
+        s: curves.iterations[s] <= (until if until is not None else np.inf) for s in curves.seeds
+    }
+    seeds = [s for s in curves.seeds if kept[s].any()]
+
+    def column(seed: int, name: str) -> np.ndarray:
+        return curves.values[seed][name][kept[seed]]
+
+    first = curves.iterations[seeds[0]][kept[seeds[0]]]
+    curve = "eval/return_ratio" if curves.has("eval/return_ratio") else "eval/success"
+    out: dict = {"seeds": seeds, "iterations": int(first[-1])}
+    for key, name in (("success", "eval/success"), ("margin", "eval/adversary_margin_env")):
+        out[key] = np.array([final_value(column(s, name)) for s in seeds])
     conv = []
     for s in seeds:
-        c, _ = convergence_point(_column(by_seed[s], "iteration"), _column(by_seed[s], curve))
+        c, _ = convergence_point(column(s, "iteration"), column(s, curve))
         conv.append(np.inf if c is None else c)
     out["convergence"] = np.array(conv)
-    period = int(first[1]["iteration"]) - int(first[0]["iteration"]) if len(first) > 1 else 1
+    period = int(first[1]) - int(first[0]) if len(first) > 1 else 1
     for counter in ("clipped", "dropped"):
-        if f"defense/guard_{counter}" in first[0]:
+        if curves.has(f"defense/guard_{counter}"):
             out[f"{counter}_per_it"] = np.mean(
-                [_column(by_seed[s], f"defense/guard_{counter}").mean() for s in seeds]
+                [column(s, f"defense/guard_{counter}").mean() for s in seeds]
             )
-    givers = sorted(k for k in first[0] if k.startswith("defense/monitor_alarms_by_giver/"))
+    givers = sorted(k for k in curves.columns if k.startswith("defense/monitor_alarms_by_giver/"))
     adversary = f"defense/monitor_alarms_by_giver/agent_{run.adversary}"
     if adversary in givers:
         on_adv, on_others, any_alarm = [], [], []
         for s in seeds:
-            rows = by_seed[s]
-            its = _column(rows, "iteration")
-            adv = _column(rows, adversary) * period  # alarms raised in each evaluation period
-            others = sum(_column(rows, g) * period for g in givers if g != adversary)
+            its = column(s, "iteration")
+            adv = column(s, adversary) * period  # alarms raised in each evaluation period
+            others = sum(column(s, g) * period for g in givers if g != adversary)
             on_adv.append(_first(its, adv))
             on_others.append(_first(its, others))
             any_alarm.append(_first(its, adv + others))
@@ -131,7 +129,7 @@ def cell(run: RunRecord, until: int | None) -> dict:
         out["alarm_on_honest_giver"] = np.array(on_others)
         out["alarm_any"] = np.array(any_alarm)
         out["alarms_per_seed"] = np.mean(
-            [_column(by_seed[s], "defense/monitor_alarms").sum() * period for s in seeds]
+            [column(s, "defense/monitor_alarms").sum() * period for s in seeds]
         )
     return out
 
@@ -265,6 +263,7 @@ def plot(cells: dict, path, colors: dict) -> None:
     envs, conditions, sets = axes(cells)
     fig, grid = plots.plt.subplots(2, len(envs), figsize=(5.2 * len(envs), 7.5), squeeze=False)
     width = 0.8 / len(conditions)
+    drawn = []
     for col, env in enumerate(envs):
         for row, (metric, ylabel) in enumerate(
             (("success", "final success"), ("margin", "adversary env margin"))
@@ -277,6 +276,7 @@ def plot(cells: dict, path, colors: dict) -> None:
                     if c is None:
                         continue
                     interval = statistics.mean_interval(c[metric])
+                    drawn.append((interval.kind, interval.n))
                     lo, hi = interval.lo, interval.hi
                     m = c[metric].mean()
                     xs.append(k + (a - (len(conditions) - 1) / 2) * width)
@@ -295,8 +295,9 @@ def plot(cells: dict, path, colors: dict) -> None:
                 ax.set_ylim(0, 1.05)
             ax.axhline(0, color="black", lw=0.5)
             ax.grid(axis="y", alpha=0.3)
-    grid[0][0].legend(title="attack", fontsize=8)
+    bars = plots.band_text(drawn, "error bar")
+    error_bar = plots.Line2D([], [], color="black", marker="|", ls="", label=bars)
+    plots.legend_below(fig, grid.flat, [error_bar], title="attack")
     seeds = count_text((len(c["seeds"]) for c in cells.values()), "seeds")
-    bars = statistics.interval_text(len(c["seeds"]) for c in cells.values())
-    fig.suptitle(f"LIO under attack with each defense\nmean over {seeds}; {bars}", fontsize=9)
+    fig.suptitle(f"LIO under attack with each defense (mean over {seeds})", fontsize=9)
     plots.save(fig, path, dpi=120)

@@ -9,15 +9,21 @@ import numpy as np
 
 from pimbot import statistics
 from pimbot.analysis import plots, verdicts
-from pimbot.analysis.document import Claim, Comparison, Context, Section, count_text
-from pimbot.analysis.runs import RunTable, condition_colors, condition_key, natural_key
+from pimbot.analysis.claims import Claim, Comparison
+from pimbot.analysis.document import Context, Section, count_text
+from pimbot.analysis.runs import (
+    PROFILE_RUN,
+    RunTable,
+    condition_colors,
+    condition_key,
+    natural_key,
+    read_profile,
+)
 from pimbot.analysis.tables import INTERVAL, Estimate, Table, estimate, fmt
 from pimbot.analysis.verdicts import Verdict
 from pimbot.profiling import decision_loop
 from pimbot.profiling import report as profile_files
-from pimbot.training import store
 
-PROFILE_RUN = "profile/er21_paired"
 CONTROLLERS = decision_loop.CONTROLLERS
 """benign, the paper's ADMO, the published code's ADMO (a profile may lack the last)."""
 TRACES = (("cpu", "CPU %"), ("gpu", "GPU %"), ("temp", "temperature °C"))
@@ -78,9 +84,8 @@ def plot_profile(path, controllers, out) -> bool:
             ax.grid(alpha=0.3)
             if row == 0:
                 ax.set_title(name)
-            if field == "cpu":
-                ax.legend(fontsize=7, loc="upper right")
         axes[-1][col].set_xlabel("time (s)")
+    plots.legend_below(fig, fig.axes)
     plots.save(fig, out, dpi=120)
     return True
 
@@ -106,7 +111,7 @@ def _modest(est: Estimate | None, at_slowest: float | None, slowest: int, contex
     overhead the paper reports fits its code's scheduler of extra ordinary steps, not the
     attack it describes); our setting where a slower cadence amortizes it (the update
     step dominates: its cost against a decision depends on the machine and the cadence;
-    spec/profiling.md gives the paper's profile no cadence); else our implementation
+    the paper gives its profile no cadence, docs/profiling.md); else our implementation
     (ADMO's decisions themselves are dearer)."""
     if est is None:
         return verdicts.inconclusive("no paired rounds at the training cadence")
@@ -130,7 +135,7 @@ def _modest(est: Estimate | None, at_slowest: float | None, slowest: int, contex
             f"{text} > {MODEST_PERCENT:g} %: an ADMO update step costs {ratio:.1f}x a benign "
             f"one on this machine ({context['machine']}), spread over only "
             f"{context['judged']} decisions; at {slowest} decisions per update "
-            f"{at_slowest:+.1f} % (spec/profiling.md gives the paper's profile no cadence)"
+            f"{at_slowest:+.1f} % (the paper gives its profile no cadence: docs/profiling.md)"
             + (f"; the published code's ADMO {code} %" if code is not None else ""),
         )
     return verdicts.refuted(
@@ -241,36 +246,74 @@ def judge_c8(summary: dict) -> tuple[Verdict, str, str, list[Comparison]]:
     if updates < MIN_UPDATES:
         reason = f"only {updates} update steps at the training cadence ({judged} decisions)"
         return verdicts.inconclusive(reason), reason, reason, []
-    at = comp["cadences"][key]
     basis, load, shared = _basis(summary, key)
+    overhead, basis = _overhead(summary, key, basis, load)
     cores = summary["admo"]["usable_cores"]
+    parts = {"overhead": overhead, "saturation": _unsaturated(admo, benign, cores, shared)}
+    measured = _c8_measured(summary, key, basis, load, parts)
+    per_round = comp["cadences"][key].get(basis["per_round"], [])
+    what = basis["basis"].split(":")[0]
+    cadence = f"{judged} decisions/update (training)"
+    cpu = admo["process_cpu"]
+    numbers = [
+        Comparison(
+            f"ADMO amortized overhead per decision ({what})",
+            cadence,
+            "modest",
+            None,
+            f"{_overhead_estimate(per_round)} %",
+        ),
+        Comparison(
+            "process CPU under ADMO (of usable cores)",
+            cadence,
+            "no sustained saturation",
+            None,
+            f"mean {fmt(cpu['mean'], 1)} %, p95 {fmt(cpu['p95'], 1)} %",
+        ),
+    ]
+    short = (
+        f"{judged} decisions/update: overhead ({what}) {_overhead_estimate(per_round)} %; "
+        f"ADMO process CPU {fmt(cpu['mean'], 1)} % of its cores"
+    )
+    return verdicts.combine(parts), measured, short, numbers
+
+
+def _overhead(summary: dict, key: str, basis: dict | None, load: str) -> tuple[Verdict, dict]:
+    """C8's overhead part at cadence `key` on `basis` (`_basis`; None: nothing fits, so
+    inconclusive), and the basis the numbers are shown on."""
+    comp = summary["comparison"]
+    at = comp["cadences"][key]
+    benign, admo = summary["benign"]["cadences"][key], summary["admo"]["cadences"][key]
     if basis is None:
-        overhead = verdicts.inconclusive(
+        return verdicts.inconclusive(
             f"{load}: wall-clock times are distorted and the process's CPU time misses the "
             f"GPU's work (wall-clock overhead {_overhead_estimate(at['per_round_percent'])} %)"
-        )
-        basis = WALL
-    else:
-        est = _overhead_estimate(at.get(basis["per_round"], []))
-        slowest = max(int(k) for k in comp["cadences"])
-        at_slowest = comp["cadences"][str(slowest)].get(basis["amortized"])
-        decision = [_value(c, basis["decision"]) for c in (admo, benign)]
-        code = summary.get("comparison_admo_code", {}).get("cadences", {}).get(key, {})
-        context = {
-            "code": _overhead_estimate(code.get(basis["per_round"], [])),
-            "basis": basis["basis"],
-            "rounds": len(at.get(basis["per_round"], [])),
-            "update_ratio": _value(admo, basis["update"]) / _value(benign, basis["update"]),
-            "latency_percent": 100.0 * (decision[0] - decision[1]) / decision[1],
-            "machine": f"{cores} usable cores, GPU "
-            + ("present" if admo["mean_gpu_percent"] is not None else "absent")
-            + f", {load}",
-            "judged": judged,
-        }
-        overhead = _modest(
-            est, None if at_slowest is None else at_slowest["percent"], slowest, context
-        )
-    parts = {"overhead": overhead, "saturation": _unsaturated(admo, benign, cores, shared)}
+        ), WALL
+    est = _overhead_estimate(at.get(basis["per_round"], []))
+    slowest = max(int(k) for k in comp["cadences"])
+    at_slowest = comp["cadences"][str(slowest)].get(basis["amortized"])
+    decision = [_value(c, basis["decision"]) for c in (admo, benign)]
+    code = summary.get("comparison_admo_code", {}).get("cadences", {}).get(key, {})
+    context = {
+        "code": _overhead_estimate(code.get(basis["per_round"], [])),
+        "basis": basis["basis"],
+        "rounds": len(at.get(basis["per_round"], [])),
+        "update_ratio": _value(admo, basis["update"]) / _value(benign, basis["update"]),
+        "latency_percent": 100.0 * (decision[0] - decision[1]) / decision[1],
+        "machine": f"{summary['admo']['usable_cores']} usable cores, GPU "
+        + ("present" if admo["mean_gpu_percent"] is not None else "absent")
+        + f", {load}",
+        "judged": comp["judged_cadence"],
+    }
+    slowest_percent = None if at_slowest is None else at_slowest["percent"]
+    return _modest(est, slowest_percent, slowest, context), basis
+
+
+def _c8_measured(summary: dict, key: str, basis: dict, load: str, parts: dict) -> str:
+    """Every number C8 is judged on, and the burstiness and other cadences beside them."""
+    comp = summary["comparison"]
+    training, judged, at = comp["training_cadence"], comp["judged_cadence"], comp["cadences"][key]
+    benign, admo = summary["benign"]["cadences"][key], summary["admo"]["cadences"][key]
     update = [_value(c, basis["update"]) for c in (admo, benign)]
     extra_update = (update[0] - update[1]) / judged
     extra = admo[basis["amortized"]] - benign[basis["amortized"]]
@@ -281,59 +324,41 @@ def judge_c8(summary: dict) -> tuple[Verdict, str, str, list[Comparison]]:
         if k != key
     )
     wall, cpu = at["amortized_ms"], at.get("amortized_cpu_ms")
+    what = basis["basis"].split(":")[0]
     measured = (
         f"training cadence {judged} decisions per update ({training['episodes_per_update']} "
         f"episodes × {training['max_steps']}-step horizon); {load}: {parts['overhead'].reason}; "
-        f"{parts['saturation'].reason}; bursty ({basis['basis'].split(':')[0]}): update step "
+        f"{parts['saturation'].reason}; bursty ({what}): update step "
         f"ADMO {update[0]:.2f} ms vs benign {update[1]:.2f} ms, update steps {fmt(share, 0)} % "
         f"of the extra time; amortized overhead by wall clock {fmt(wall and wall['percent'], 1)} "
         f"%, by CPU time {fmt(cpu and cpu['percent'], 1)} %, from medians (decision p50 + "
         f"update p50 / cadence) "
         f"{fmt(at['amortized_p50_ms'] and at['amortized_p50_ms']['percent'], 1)} %; other "
-        f"cadences ({basis['basis'].split(':')[0]}) {others}"
+        f"cadences ({what}) {others}"
     )
     code = summary.get("comparison_admo_code", {}).get("cadences", {}).get(key)
     if code is not None:
         measured += (
-            f"; the published code's ADMO at {judged} decisions per update "
-            f"({basis['basis'].split(':')[0]}): "
+            f"; the published code's ADMO at {judged} decisions per update ({what}): "
             f"{_overhead_estimate(code.get(basis['per_round'], []))} %"
         )
-    per_round = at.get(basis["per_round"], [])
-    numbers = [
-        Comparison(
-            f"ADMO amortized overhead per decision ({basis['basis'].split(':')[0]})",
-            f"{judged} decisions/update (training)",
-            "modest",
-            None,
-            f"{_overhead_estimate(per_round)} %",
-        ),
-        Comparison(
-            "process CPU under ADMO (of usable cores)",
-            f"{judged} decisions/update (training)",
-            "no sustained saturation",
-            None,
-            f"mean {fmt(admo['process_cpu']['mean'], 1)} %, p95 "
-            f"{fmt(admo['process_cpu']['p95'], 1)} %",
-        ),
-    ]
-    short = (
-        f"{judged} decisions/update: overhead ({basis['basis'].split(':')[0]}) "
-        f"{_overhead_estimate(per_round)} %; ADMO process CPU "
-        f"{fmt(admo['process_cpu']['mean'], 1)} % of its cores"
-    )
-    return verdicts.combine(parts), measured, short, numbers
+    return measured
 
 
 def _cpu_cell(cpu: dict) -> str:
     return " / ".join(fmt(cpu[k], 1) for k in ("mean", "p95", "max"))
 
 
-def profile_section(table: RunTable, ctx: Context) -> Section | None:
-    path = ctx.suite_dir / PROFILE_RUN
-    if not (path / store.SUMMARY).exists():
+CLAIM_TEXT = "ADMO adds modest, mostly CPU-side, bursty overhead; no sustained saturation"
+SECTION = "On-device profile: benign vs ADMO (C8)"
+
+
+def profile_section(table: RunTable | None, ctx: Context) -> Section | None:
+    """The paired profile (`RunTable.profile`; without a table, read from the suite
+    directory): Fig. 8, its tables and C8."""
+    summary = table.profile if table is not None else read_profile(ctx.suite_dir)
+    if summary is None:
         return None
-    summary = store.read_json(path / store.SUMMARY)
     figure_path, figure = ctx.figure(
         "fig8_profile.png",
         "Fig. 8: profiling traces, benign vs ADMO and the published code's ADMO (warm-up "
@@ -341,12 +366,41 @@ def profile_section(table: RunTable, ctx: Context) -> Section | None:
         "of the cores it may use, and the system's); the controllers' segments are "
         "interleaved, so each column has gaps; sensors this machine does not have are left out",
     )
+    path = ctx.suite_dir / PROFILE_RUN
     figures = [figure] if plot_profile(path, CONTROLLERS, figure_path) else []  # those present
-    claim_text = "ADMO adds modest, mostly CPU-side, bursty overhead; no sustained saturation"
     if "cadences" not in summary.get("comparison", {}):
         reason = "the profile predates the per-cadence measurement; rerun its job (--restart)"
-        claim = Claim("C8", claim_text, "–", reason, verdicts.inconclusive(reason))
-        return Section("On-device profile: benign vs ADMO (C8)", claims=[claim])
+        claim = Claim("C8", CLAIM_TEXT, "–", reason, verdicts.inconclusive(reason))
+        return Section(SECTION, claims=[claim])
+    return Section(
+        SECTION,
+        text=profile_text(summary),
+        tables=profile_tables(summary),
+        figures=figures,
+        claims=[c8(summary)],
+    )
+
+
+def c8(summary: dict) -> Claim:
+    verdict, measured, short, numbers = judge_c8(summary)
+    return Claim(
+        "C8",
+        CLAIM_TEXT,
+        f"at LIO's training cadence (decisions per update = episodes per update × the "
+        f"horizon), ADMO's amortized overhead per decision (decision latency + update time "
+        f"/ cadence, against benign; interval over the paired rounds; by wall clock, or by "
+        f"the process's CPU time where other work kept ≥ {SHARED_CORES:g} cores busy) ≤ "
+        f"{MODEST_PERCENT:g} %, and under ADMO the process's mean CPU (of the cores it may "
+        f"use) and the mean GPU < {SATURATED_PERCENT:g} %; the other cadences shown",
+        measured,
+        verdict,
+        short,
+        numbers=numbers,
+    )
+
+
+def profile_tables(summary: dict) -> list[Table]:
+    """Every cadence of every controller (speed, latency, overhead, CPU, GPU), and power."""
     comp = summary["comparison"]
     judged = comp["judged_cadence"]
     controllers = [name for name in CONTROLLERS if name in summary]
@@ -383,63 +437,41 @@ def profile_section(table: RunTable, ctx: Context) -> Section | None:
         [name] + [fmt(summary[name][k], 1) for k in ("mean_power_w", "energy_j", "peak_temp_c")]
         for name in controllers
     ]
-    verdict, measured, short, numbers = judge_c8(summary)
-    training = comp["training_cadence"]
+    power_header = ["controller", "power (W)", "energy (J)", "peak temp (°C)"]
+    return [Table(header, rows, name="profile"), Table(power_header, power, name="profile_power")]
+
+
+def profile_text(summary: dict) -> list[str]:
+    """What was profiled, the training cadence, and what each column measures."""
+    training = summary["comparison"]["training_cadence"]
     played = training["played_per_update"]
     config = summary["admo"]["config"]
-    claim = Claim(
-        "C8",
-        claim_text,
-        f"at LIO's training cadence (decisions per update = episodes per update × the "
-        f"horizon), ADMO's amortized overhead per decision (decision latency + update time "
-        f"/ cadence, against benign; interval over the paired rounds; by wall clock, or by "
-        f"the process's CPU time where other work kept ≥ {SHARED_CORES:g} cores busy) ≤ "
-        f"{MODEST_PERCENT:g} %, and under ADMO the process's mean CPU (of the cores it may "
-        f"use) and the mean GPU < {SATURATED_PERCENT:g} %; the other cadences shown",
-        measured,
-        verdict,
-        short,
-        numbers=numbers,
-    )
-    return Section(
-        "On-device profile: benign vs ADMO (C8)",
-        text=[
-            f"Decision loop of LIO on ER(2,1) on the profiling machine "
-            f"({config['duration_s']:g} s steady state per controller over "
-            f"{len(config['cadences'])} cadences, the controllers interleaved in "
-            f"{config['rounds']} rounds): benign LIO, the paper's ADMO on agent 0 (`admo`, "
-            "judged) and the published code's ADMO (`admo_code`, a scheduler of extra "
-            "ordinary steps, shown beside it); sensors that are not present read '–' and have "
-            "no panel in Fig. 8.",
-            f"The training cadence: one LIO update is one iteration, which plays "
-            f"{training['episodes_per_update']} episodes (counted from a trace of the "
-            f"learner's update) of up to {training['max_steps']} decisions each, so its "
-            f"training takes {training['decisions_per_update']} decisions per update (its "
-            "rollouts compute every step of the horizon). Episodes that end early play fewer: "
-            f"the profiled learners played {played['benign']:.1f} (benign) and "
-            f"{played['admo']:.1f} (ADMO) per update, and a converged ER(2,1) policy plays "
-            "2 (one step per episode). C8 is judged at the training cadence.",
-            "Amortized ms/decision = (decision latencies + update times) / decisions at that "
-            "cadence, by wall clock and by the process's CPU time over each; the environment "
-            "runs off the timed path. Process CPU = this process's CPU time (all threads) in "
-            f"% of the {summary['admo']['usable_cores']} cores it may use, in windows of "
-            f"{config['cpu_window_s']:g} s; system CPU = the whole machine's (sampled); other "
-            "load = the cores the rest of the machine kept busy meanwhile. Where that is "
-            f"≥ {SHARED_CORES:g} cores, short decisions wait for the CPU far more than "
-            "updates do and wall-clock overheads understate ADMO's; C8 is then judged on "
-            "CPU time.",
-        ],
-        tables=[
-            Table(header, rows, name="profile"),
-            Table(
-                ["controller", "power (W)", "energy (J)", "peak temp (°C)"],
-                power,
-                name="profile_power",
-            ),  # fmt: skip
-        ],
-        figures=figures,
-        claims=[claim],
-    )
+    return [
+        f"Decision loop of LIO on ER(2,1) on the profiling machine "
+        f"({config['duration_s']:g} s steady state per controller over "
+        f"{len(config['cadences'])} cadences, the controllers interleaved in "
+        f"{config['rounds']} rounds): benign LIO, the paper's ADMO on agent 0 (`admo`, "
+        "judged) and the published code's ADMO (`admo_code`, a scheduler of extra "
+        "ordinary steps, shown beside it); sensors that are not present read '–' and have "
+        "no panel in Fig. 8.",
+        f"The training cadence: one LIO update is one iteration, which plays "
+        f"{training['episodes_per_update']} episodes (counted from a trace of the "
+        f"learner's update) of up to {training['max_steps']} decisions each, so its "
+        f"training takes {training['decisions_per_update']} decisions per update (its "
+        "rollouts compute every step of the horizon). Episodes that end early play fewer: "
+        f"the profiled learners played {played['benign']:.1f} (benign) and "
+        f"{played['admo']:.1f} (ADMO) per update, and a converged ER(2,1) policy plays "
+        "2 (one step per episode). C8 is judged at the training cadence.",
+        "Amortized ms/decision = (decision latencies + update times) / decisions at that "
+        "cadence, by wall clock and by the process's CPU time over each; the environment "
+        "runs off the timed path. Process CPU = this process's CPU time (all threads) in "
+        f"% of the {summary['admo']['usable_cores']} cores it may use, in windows of "
+        f"{config['cpu_window_s']:g} s; system CPU = the whole machine's (sampled); other "
+        "load = the cores the rest of the machine kept busy meanwhile. Where that is "
+        f"≥ {SHARED_CORES:g} cores, short decisions wait for the CPU far more than "
+        "updates do and wall-clock overheads understate ADMO's; C8 is then judged on "
+        "CPU time.",
+    ]
 
 
 def _estimate(entry: dict) -> Estimate:
@@ -448,8 +480,9 @@ def _estimate(entry: dict) -> Estimate:
 
 
 def robot_section(table: RunTable, ctx: Context) -> Section | None:
-    """One row per trained run driven by robots, labelled like the trained run itself."""
-    summaries = [store.read_json(p) for p in sorted(ctx.suite_dir.glob("robot/*/summary.json"))]
+    """One row per trained run driven by robots (`RunTable.robot`), labelled like the
+    trained run itself."""
+    summaries = table.robot
     if not summaries:
         return None
     trained = {r.name: r for r in table.records}
@@ -494,9 +527,11 @@ def robot_section(table: RunTable, ctx: Context) -> Section | None:
 
 
 def plot_robot(results: list[tuple[str, str, dict]], path, colors: dict) -> None:
-    """Physics (solid) and abstract (hatched) success per condition, in its colour."""
+    """Physics (solid) and abstract (hatched) success per condition, in its colour, with
+    their intervals over seeds; the legend under the panels says what the error bars are."""
     envs = sorted({env for env, _, _ in results}, key=natural_key)
     fig, axes = plots.plt.subplots(1, len(envs), figsize=(4.2 * len(envs), 3.4), squeeze=False)
+    drawn = []
     for ax, env in zip(axes[0], envs, strict=True):
         mine = [(c, s) for e, c, s in results if e == env]
         x = np.arange(len(mine))
@@ -507,6 +542,7 @@ def plot_robot(results: list[tuple[str, str, dict]], path, colors: dict) -> None
         ):
             means = [s[key]["mean"] for _, s in mine]
             intervals = [statistics.mean_interval(s[key]["per_seed"]) for _, s in mine]
+            drawn += [(i.kind, i.n) for i in intervals]
             lo = [m - i.lo for m, i in zip(means, intervals, strict=True)]
             hi = [i.hi - m for m, i in zip(means, intervals, strict=True)]
             ax.bar(x + offset, means, 0.4, yerr=[lo, hi], color=shades, capsize=2, **style)
@@ -521,6 +557,9 @@ def plot_robot(results: list[tuple[str, str, dict]], path, colors: dict) -> None
         plots.plt.Rectangle(
             (0, 0), 1, 1, facecolor="0.35", alpha=0.45, hatch="///", ec="white", label="abstract"
         ),
+        plots.Line2D(
+            [], [], color="black", marker="|", ls="", label=plots.band_text(drawn, "error bar")
+        ),
     ]
-    axes[0][0].legend(handles=handles, fontsize=8)
+    plots.legend_below(fig, [], handles)
     plots.save(fig, path)

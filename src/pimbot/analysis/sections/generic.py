@@ -6,7 +6,7 @@ from __future__ import annotations
 import re
 
 from pimbot.analysis import plots
-from pimbot.analysis.document import Context, Section, band_text, final_window_text, seeds_text
+from pimbot.analysis.document import Context, Section, final_window_text, seeds_text
 from pimbot.analysis.runs import (
     CLEAN,
     NO_DEFENSE,
@@ -79,13 +79,12 @@ def group_results(table: RunTable, runs: list[RunRecord], group: str, ctx: Conte
             label += f" [{run.setting}]"
         style = STYLES[sets.index(run.defenses) % len(STYLES)]
         lines.append((run, label, colors[run.condition], style))
-    path, figure = ctx.figure(
-        f"{slug}_success.png",
-        f"{group}: success per condition (mean over {seeds_text(runs)}, {band_text(runs)})",
-    )
-    if not plots.curve_panels(
+    path, figure = ctx.figure(f"{slug}_success.png")
+    bands = plots.curve_panels(
         list(panels.items()), "eval/success", "success", path, min(3, len(panels))
-    ):
+    )
+    figure.caption = f"{group}: success per condition (mean over {seeds_text(runs)}, {bands})"
+    if not bands:
         figure = None
     rows = []
     for run in runs:

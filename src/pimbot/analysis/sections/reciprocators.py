@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-from pimbot.analysis import judging, plots, verdicts
-from pimbot.analysis.curves import load_curve
-from pimbot.analysis.document import Claim, Comparison, Context, Section, band_text, seeds_text
+from pimbot import envs
+from pimbot.analysis import plots, verdicts
+from pimbot.analysis.claims import CLAIM_TEXT, Claim, Comparison
+from pimbot.analysis.document import Context, Section, seeds_text
 from pimbot.analysis.runs import CLEAN, RunRecord, RunTable, condition_key, natural_key
 from pimbot.analysis.tables import INTERVAL, Table, difference, estimate
 from pimbot.statistics import interval_text
@@ -29,10 +30,6 @@ CAPTURES_FILE = "stag_captures.json"
 (success counts hares too); read when a run directory holds it."""
 BASELINE = 0.8
 """The published baseline "80–90 %": its lower end."""
-C7_TEXT = (
-    "Reciprocators: baseline 80–90 % → ADMO near 0 (ER(4,3), Stag Hunt), < 30 % "
-    "(ER(4,2)), < 10 % (IPD)"
-)
 
 
 def variant(run: RunRecord) -> str:
@@ -97,14 +94,18 @@ def section(table: RunTable, ctx: Context) -> Section | None:
     ]
     if panels:
         seeds = seeds_text(grudge)
-        path, figure = ctx.figure(
-            "fig7_reciprocators.png", f"Fig. 7: Reciprocators, clean vs ADMO ({seeds})"
-        )
-        title = f"C7: Reciprocators (mean over {seeds}, {band_text(grudge)})"
-        if plots.curve_panels(panels, "eval/success", "success", path, 3, (-0.05, 1.05), title):
+        path, figure = ctx.figure("fig7_reciprocators.png")
+        title = f"C7: Reciprocators (mean over {seeds})"
+        bands = plots.curve_panels(panels, "eval/success", "success", path, 3, (-0.05, 1.05), title)
+        if bands:
+            figure.caption = f"Fig. 7: Reciprocators, clean vs ADMO (mean over {seeds}, {bands})"
             out.figures.append(figure)
-    path, figure = ctx.figure("fig7b_ipd_fidelity.png", "Fig. 7b: 2-player IPD fidelity")
-    if fig_fidelity(runs, path):
+    path, figure = ctx.figure("fig7b_ipd_fidelity.png")
+    if bands := fig_fidelity(runs, path):
+        figure.caption = (
+            f"Fig. 7b: 2-player IPD fidelity (mean over seeds, {bands}; dashed: each agent's "
+            "env return per step, rescaled to the rate axis)"
+        )
         out.figures.append(figure)
     out.claims.append(c7(runs))
     settings = settings_table(runs)
@@ -137,7 +138,7 @@ def size(run: RunRecord) -> tuple:
 
 
 CODE_SETTINGS = {"lr": 1e-4, "gamma": 0.99}
-"""The learner values of the original code's Reciprocator Escape Room run (spec/experiments.md;
+"""The learner values of the original code's Reciprocator Escape Room run (docs/reciprocators.md;
 with 1 or 128 episodes per update, w 5 and the accumulated balance)."""
 
 
@@ -214,7 +215,7 @@ def c7(runs: list[RunRecord]) -> Claim:
     counts = {k: sum(v.kind == k for v in parts.values()) for k in verdicts.KINDS}
     return Claim(
         "C7",
-        C7_TEXT,
+        CLAIM_TEXT["C7"],
         f"our setting (the suite's C7 runs): clean Reciprocator mean final success ≥ "
         f"{BASELINE:g} in every env, and ADMO (disrupt) < 0.1 in ER(4,3), IPD(2,3,4), Stag "
         "Hunt(2,3,4), < 0.3 in ER(4,2); an ER shortfall is classified by the transfer "
@@ -279,13 +280,11 @@ def _parts_text(parts: dict) -> str:
     return "; ".join(f"{name}: {v.reason or v.label}" for name, v in parts.items())
 
 
-ROLE_NAMES = {"escape_room-v0": ("lever", "start", "door"), "ipd-v0": ("C", "D")}
-
-
 def voi_roles(run: RunRecord) -> str | None:
     """Final VoI by role ("lever → door 0.12; …"), read from the train/voi_role/ columns."""
-    curves = judging.read_curves(run.path)
-    names = ROLE_NAMES.get(run.identity["env_id"])
+    curves = run.curves
+    env_id = run.identity["env_id"]  # its registry entry names the actions, where it does
+    names = envs.spec(env_id).action_names if env_id in envs.registered() else ()
     keys = sorted(k for k in curves.values[curves.seeds[0]] if k.startswith("train/voi_role/"))
     if not keys:
         return None
@@ -343,7 +342,7 @@ def voi_table(runs: list[RunRecord]) -> Table | None:
             continue
         n, a = run.num_agents, run.adversary
         others = [j for j in range(n) if j != a]
-        curves = judging.read_curves(run.path)  # train/ columns: summary.json has eval/ only
+        curves = run.curves  # train/ columns: summary.json has eval/ only
         given = [curves.final(f"train/voi/agent_{a}_to_agent_{j}") for j in others]
         received = [curves.final(f"train/voi/agent_{j}_to_agent_{a}") for j in others]
         if any(v.size == 0 for v in given + received):
@@ -409,8 +408,9 @@ def results_table(rows: list[dict]) -> Table:
     return Table(header, [[r[k] for k in keys] for r in rows], name="reciprocators")
 
 
-def fig_fidelity(runs: list[RunRecord], path) -> bool:
-    """2-player IPD: cooperation and per-agent return, R vs R, NL vs NL, R vs NL (agent 0 NL)."""
+def fig_fidelity(runs: list[RunRecord], path) -> str:
+    """2-player IPD: cooperation and per-agent return, R vs R, NL vs NL, R vs NL (agent 0 NL).
+    Returns what the bands are ("" where no such run: nothing written)."""
     cases = []
     for run in runs:
         if run.env != "IPD(2)":
@@ -422,13 +422,14 @@ def fig_fidelity(runs: list[RunRecord], path) -> bool:
         elif run.learner == LEARNER and run.condition == "self_centered":
             cases.append((run, "NL (agent 0) vs R"))
     if not cases:
-        return False
+        return ""
     fig, axes = plots.plt.subplots(1, len(cases), figsize=(4.2 * len(cases), 3.2), squeeze=False)
+    drawn = []
     for ax, (run, label) in zip(axes.flat, cases, strict=True):
-        plots.band(ax, run.path, "eval/success", "mutual cooperation", "black")
+        drawn.append(plots.band(ax, run.curves, "eval/success", "mutual cooperation", "black"))
         steps = float(run.identity["env_params"].get("max_steps", 5))
         for agent, color in ((0, "tab:green"), (1, "tab:blue")):
-            iterations, values = load_curve(run.path, f"eval/return_env/agent_{agent}")
+            iterations, values = run.curves.matrix(f"eval/return_env/agent_{agent}")
             # Per-step return, −3 … 0, drawn on the rate axis as (return/step + 3)/3.
             mean = ((values / steps + 3.0) / 3.0).mean(axis=0)
             ax.plot(iterations, mean, color=color, lw=1, ls="--", label=f"agent {agent} return")
@@ -437,7 +438,8 @@ def fig_fidelity(runs: list[RunRecord], path) -> bool:
         ax.set_ylim(-0.05, 1.05)
         ax.set_xlabel("iteration")
         ax.set_ylabel("rate; (return/step + 3)/3")
-        ax.legend(fontsize=7)
     fig.suptitle(f"2-player IPD fidelity (mean over {seeds_text(r for r, _ in cases)})")
+    bands = plots.band_text(drawn)
+    plots.legend_below(fig, axes.flat, [plots.band_handle(bands)])
     plots.save(fig, path)
-    return True
+    return bands

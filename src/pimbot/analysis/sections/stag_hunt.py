@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import numpy as np
-
 from pimbot.analysis import judging, plots, verdicts
-from pimbot.analysis.document import Claim, Comparison, Context, Section, band_text, seeds_text
+from pimbot.analysis.claims import Claim, Comparison
+from pimbot.analysis.document import Context, Section, seeds_text
 from pimbot.analysis.runs import CLEAN, RunRecord, RunTable, natural_key
 from pimbot.analysis.tables import INTERVAL, Estimate, Table, difference, estimate
 from pimbot.statistics import interval_text
-from pimbot.training import store
 
 GROUP = "stag_hunt"
 ATTACKED = "admo_disrupt"
@@ -28,18 +26,6 @@ def section(table: RunTable, ctx: Context) -> Section | None:
         return None
     ctx.claim(runs)
     envs = sorted({r.env for r in runs}, key=natural_key)
-    counts = ", ".join(str(n) for n in sorted({r.num_agents for r in runs}))
-    band = f"mean over {seeds_text(runs)}, {band_text(runs)}"
-    panels = plots.condition_panels(runs, envs, table.colors)
-    figures = []
-    for name, number, column, label in (
-        ("fig6_stag_hunt.png", "6", SUCCESS, "success"),
-        ("fig6b_stag_captures.png", "6b", CAPTURES, "stag captures / episode"),
-    ):
-        caption = f"Fig. {number}: Stag Hunt N = {counts}, {label} ({band})"
-        path, figure = ctx.figure(name, caption)
-        if plots.curve_panels(panels, column, label, path):
-            figures.append(figure)
     rows, parts, lines, numbers = [], {}, [], []
     for env in envs:
         clean = next((r for r in runs if r.env == env and r.condition == CLEAN), None)
@@ -50,52 +36,8 @@ def section(table: RunTable, ctx: Context) -> Section | None:
         judged, line = judge_env(env, clean, admo)
         parts.update(judged)
         lines.append(line)
-        numbers += [
-            Comparison(
-                f"{env} clean success rise",
-                f"{clean.iterations:,} it",
-                "rises",
-                None,
-                str(rise(clean)),
-            ),
-            Comparison(
-                f"{env} ADMO final success",
-                f"{admo.iterations:,} it",
-                "→ 0",
-                None,
-                str(estimate(admo.per_seed(SUCCESS))),
-            ),
-        ]
-        reference = plots.RANDOM_POLICY.get(env, {}).get(CAPTURES)
-        for run in (clean, admo):
-            rows.append(
-                [
-                    env,
-                    run.condition,
-                    run.per_seed(SUCCESS).size,
-                    estimate(run.per_seed(SUCCESS)),
-                    rise(run),
-                    estimate(run.per_seed(CAPTURES)),
-                    rise(run, CAPTURES),
-                    reference,
-                    estimate(run.per_seed(CODE_SUCCESS)),
-                ]
-            )
-    verdict = verdicts.combine(parts)
-    counts = {k: sum(v.kind == k for v in parts.values()) for k in verdicts.KINDS}
-    claim = Claim(
-        "C6",
-        "Stag Hunt N = 2, 3, 4: LIO baseline success rises; ADMO drives it toward 0",
-        "per N: the interval of the clean runs' rise of success (final − first evaluation, "
-        "per seed) > 0, and of their rise of stag captures > 0; ADMO (disrupt) mean final "
-        f"success ≤ {TOWARD_ZERO:g}. Where ours is not, but the code's metric (agent 0's own "
-        "return / 5) is, the paper's curve measures the adversary's reward",
-        "; ".join(lines) or "no runs",
-        verdict,
-        ", ".join(f"{n} {verdicts.LABELS[k].split(' (')[0]}" for k, n in counts.items() if n)
-        + f" of {len(parts)} parts",
-        numbers,
-    )
+        numbers += comparisons(env, clean, admo)
+        rows += [table_row(env, run) for run in (clean, admo)]
     header = [
         "env",
         "condition",
@@ -110,9 +52,10 @@ def section(table: RunTable, ctx: Context) -> Section | None:
     return Section(
         "Stag Hunt: LIO vs ADMO (C6)",
         text=[
-            "Success = the hunters' mean episode env reward / 5, clipped at 1 (environments "
-            "spec); hares alone can make it high, so the stag captures per episode are shown "
-            "beside it with a uniformly random team's (spec/experiments.md, simulated under "
+            "Success = the hunters' mean episode env reward / 5, clipped at 1 "
+            "(docs/environments.md); hares alone can make it high, so the stag captures per "
+            "episode are shown beside it with a uniformly random team's (docs/environments.md, "
+            "simulated under "
             "the original rules). The last column is the quantity the PIMbot code logs and "
             "plots as Stag Hunt success: its agent 1's (our agent 0's) episode env reward / "
             "5, unclipped; that agent is also the default ADMO adversary, whose reward the "
@@ -120,8 +63,75 @@ def section(table: RunTable, ctx: Context) -> Section | None:
             f"{interval_text(r.seeds for r in runs)}."
         ],
         tables=[Table(header, rows, name="stag_hunt")],
-        figures=figures,
-        claims=[claim],
+        figures=figures(runs, envs, table.colors, ctx),
+        claims=[c6(parts, lines, numbers)],
+    )
+
+
+def figures(runs: list[RunRecord], envs: list[str], colors: dict, ctx: Context) -> list:
+    """Fig. 6 (success) and 6b (stag captures) per N, clean and ADMO; those with data."""
+    counts = ", ".join(str(n) for n in sorted({r.num_agents for r in runs}))
+    panels = plots.condition_panels(runs, envs, colors)
+    out = []
+    for name, number, column, label in (
+        ("fig6_stag_hunt.png", "6", SUCCESS, "success"),
+        ("fig6b_stag_captures.png", "6b", CAPTURES, "stag captures / episode"),
+    ):
+        path, figure = ctx.figure(name)
+        if bands := plots.curve_panels(panels, column, label, path):
+            figure.caption = (
+                f"Fig. {number}: Stag Hunt N = {counts}, {label} (mean over "
+                f"{seeds_text(runs)}, {bands})"
+            )
+            out.append(figure)
+    return out
+
+
+def comparisons(env: str, clean: RunRecord, admo: RunRecord) -> list[Comparison]:
+    """C6's paper | original code | pimbot rows of one N (no original-code log covers it)."""
+    return [
+        Comparison(
+            f"{env} clean success rise", f"{clean.iterations:,} it", "rises", None, str(rise(clean))
+        ),
+        Comparison(
+            f"{env} ADMO final success",
+            f"{admo.iterations:,} it",
+            "→ 0",
+            None,
+            str(estimate(admo.per_seed(SUCCESS))),
+        ),
+    ]
+
+
+def table_row(env: str, run: RunRecord) -> list:
+    """One run's row of the Stag Hunt table."""
+    return [
+        env,
+        run.condition,
+        run.per_seed(SUCCESS).size,
+        estimate(run.per_seed(SUCCESS)),
+        rise(run),
+        estimate(run.per_seed(CAPTURES)),
+        rise(run, CAPTURES),
+        plots.RANDOM_POLICY.get(env, {}).get(CAPTURES),
+        estimate(run.per_seed(CODE_SUCCESS)),
+    ]
+
+
+def c6(parts: dict[str, verdicts.Verdict], lines: list[str], numbers: list) -> Claim:
+    counts = {k: sum(v.kind == k for v in parts.values()) for k in verdicts.KINDS}
+    return Claim(
+        "C6",
+        "Stag Hunt N = 2, 3, 4: LIO baseline success rises; ADMO drives it toward 0",
+        "per N: the interval of the clean runs' rise of success (final − first evaluation, "
+        "per seed) > 0, and of their rise of stag captures > 0; ADMO (disrupt) mean final "
+        f"success ≤ {TOWARD_ZERO:g}. Where ours is not, but the code's metric (agent 0's own "
+        "return / 5) is, the paper's curve measures the adversary's reward",
+        "; ".join(lines) or "no runs",
+        verdicts.combine(parts),
+        ", ".join(f"{n} {verdicts.LABELS[k].split(' (')[0]}" for k, n in counts.items() if n)
+        + f" of {len(parts)} parts",
+        numbers,
     )
 
 
@@ -166,10 +176,4 @@ def rise(run: RunRecord, column: str = SUCCESS) -> Estimate | None:
     final = run.per_seed(column)
     if final.size == 0:
         return None
-    rows = store.read_metrics(run.path)
-    seeds = sorted({int(r["seed"]) for r in rows})
-    first = []
-    for seed in seeds:
-        mine = [r for r in rows if int(r["seed"]) == seed]
-        first.append(float(min(mine, key=lambda r: int(r["iteration"]))[column]))
-    return estimate(final - np.array(first), signed=True)
+    return estimate(final - run.curves.first(column), signed=True)

@@ -1,0 +1,167 @@
+"""The claim model: the paper's claims C1–C8, the rows a section judges (a `Claim`, with
+its verdict and the paper | original code | pimbot numbers behind it), and the suite's
+claims table built from them.
+
+A claim is judged by the section that reads its runs (analysis.sections); its parts are
+joined and classified by `analysis.verdicts`. This module knows nothing of Markdown or
+HTML: the renderers (analysis.markdown_report, analysis.html_report) lay it out.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterable
+
+from pimbot.analysis import verdicts
+from pimbot.analysis.tables import Table
+from pimbot.analysis.verdicts import Verdict
+from pimbot.suites import presets
+
+CLAIM_TEXT = {
+    "C1": "self-centered: adversary above the others; ER converges faster",
+    "C2": "fake incentive (C = 50): success collapses to ~0 in ER",
+    "C3": "bypass: 0 success in ER(2,1), ER(4,3); ER(4,2) still solved",
+    "C4": "reverse: success → 0 except ER(4,2)",
+    "C5": "ADMO vs LIO: adversary's reward and success measures elevated in ER",
+    "C6": "Stag Hunt N = 2, 3, 4: LIO baseline rises; ADMO drives it toward 0",
+    "C7": "Reciprocators: baseline 80–90 % → ADMO near 0 (ER(4,3), Stag Hunt), < 30 % "
+    "(ER(4,2)), < 10 % (IPD)",
+    "C8": "on-device profile: ADMO overhead modest, CPU-side, bursty; no sustained saturation",
+}
+"""The paper's claims as the suite's jobs name them, in the claims table's order."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Comparison:
+    """One number of a claim as the paper states it, as the original code's logs give it and
+    as pimbot measures it, at one horizon (both logs read by the same metric code)."""
+
+    quantity: str
+    horizon: str
+    paper: str
+    original: str | None
+    """None: no original-code log covers it (written "no log")."""
+    pimbot: str | None
+
+
+@dataclasses.dataclass
+class Claim:
+    """One row of the claims table, as the section that judged it wrote it."""
+
+    id: str
+    claim: str
+    rule: str
+    measured: str
+    """Every number the verdict was judged on (the claims CSV and the details list)."""
+    verdict: Verdict
+    summary: str = ""
+    """A short form of `measured` for the claims table (empty: `measured` is short)."""
+    numbers: list[Comparison] = dataclasses.field(default_factory=list)
+    """The paper | original code | pimbot rows of the claim."""
+    jobs_of: str = ""
+    """The suite claim whose jobs feed it ("C1" for C1a and C1b); empty: its id."""
+
+    @property
+    def judged(self) -> Verdict:
+        """The verdict (the name the rules and the renderers read it by)."""
+        return self.verdict
+
+    @property
+    def suite_claim(self) -> str:
+        return self.jobs_of or self.id
+
+
+# --- the suite's claims table -----------------------------------------------------------
+
+
+def is_paper_suite(index: dict) -> bool:
+    """Whether the directory holds jobs of the paper's suite (they name the claims they
+    feed); a `pimbot sweep` grid's jobs feed none and get no claims table."""
+    return any(job.get("claims") for job in index.get("jobs", []))
+
+
+def claim_coverage(index: dict) -> dict[str, tuple[int, int]]:
+    """(finished, planned) jobs per claim: the whole suite of the index's budget counts, so
+    a directory where `--only` ran part of it is not judged on that part. The suite is
+    planned here, once per report (`presets.suite`)."""
+    status = {job["name"]: job["status"] for job in index.get("jobs", [])}
+    coverage: dict[str, list[int]] = {c: [0, 0] for c in CLAIM_TEXT}
+    for job in presets.suite(quick=index.get("suite") == "quick"):
+        for claim in job.claims:
+            coverage.setdefault(claim, [0, 0])
+            coverage[claim][1] += 1
+            coverage[claim][0] += status.get(job.name) == "finished"
+    return {c: (done, planned) for c, (done, planned) in coverage.items()}
+
+
+def suite_claims(measured: Iterable[Claim], index: dict) -> list[Claim]:
+    """C1–C8 in order, each suite claim's rows as its section wrote them (C1a, C1b, …);
+    "not run" unless every job feeding the claim has finished; at the quick budget what
+    `verdicts.at_quick_budget` allows. None outside the paper's suite."""
+    if not is_paper_suite(index):
+        return []
+    by_claim: dict[str, list[Claim]] = {}
+    for claim in measured:
+        by_claim.setdefault(claim.suite_claim, []).append(claim)
+    coverage = claim_coverage(index)
+    quick = index.get("suite") == "quick"
+    out = []
+    for cid, text in CLAIM_TEXT.items():
+        done, planned = coverage.get(cid, (0, 0))
+        mine = by_claim.get(cid, [])
+        if not mine or planned == 0 or done < planned:
+            out += _not_run(cid, text, mine, done, planned)
+            continue
+        for claim in mine:
+            judged = verdicts.at_quick_budget(claim.verdict) if quick else claim.verdict
+            out.append(dataclasses.replace(claim, verdict=judged))
+    return out
+
+
+def _not_run(cid: str, text: str, mine: list[Claim], done: int, planned: int) -> list[Claim]:
+    """The rows of a claim whose jobs have not all finished (its partial numbers kept)."""
+    short = f"{done}/{planned} runs finished" if planned else "no runs planned"
+    if not mine:
+        return [Claim(cid, text, "–", short, verdicts.not_run(short), short, jobs_of=cid)]
+    return [
+        Claim(
+            c.id,
+            c.claim,
+            c.rule,
+            f"{short}; so far: {c.measured}",
+            verdicts.not_run(short),
+            short,
+            jobs_of=cid,
+        )
+        for c in mine
+    ]
+
+
+def csv_table(claims: list[Claim]) -> Table:
+    """The claims CSV: every number judged, the verdict's label and its reason."""
+    return Table(
+        ["claim", "published", "rule", "measured", "verdict", "reason"],
+        [[c.id, c.claim, c.rule, c.measured, c.verdict.label, c.verdict.reason] for c in claims],
+    )
+
+
+COMPARISON_NOTE = (
+    "Each number as the paper states it, as the original PIMbot code's log.csv files give it "
+    "(converted into run directories and read by the same metric code as pimbot's runs; "
+    "byte-identical copies counted once) and as pimbot measures it, at the same horizon. "
+    "'no log': the original code's logs do not cover it."
+)
+
+
+def comparison_table(claims: list[Claim]) -> Table | None:
+    """paper | original code | pimbot, one row per number a claim states; None if none."""
+    rows = [
+        [c.id, n.quantity, n.horizon, n.paper, "no log" if n.original is None else n.original]
+        + [n.pimbot]
+        for c in claims
+        for n in c.numbers
+    ]
+    if not rows:
+        return None
+    header = ["claim", "quantity", "horizon", "paper", "original code", "pimbot"]
+    return Table(header, rows, "Paper | original code | pimbot", COMPARISON_NOTE, "claims_numbers")

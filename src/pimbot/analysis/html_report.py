@@ -1,0 +1,124 @@
+"""report.html: the report as one self-contained page (every PNG embedded as a data URI,
+the stylesheet `report.css` inlined), so the one file can be mailed or archived."""
+
+from __future__ import annotations
+
+import base64
+import html
+from importlib import resources
+from pathlib import Path
+
+from pimbot.analysis import layout
+from pimbot.analysis.claims import Claim
+from pimbot.analysis.document import Report, Section
+from pimbot.analysis.tables import Table, html_table
+from pimbot.analysis.verdicts import MARKERS
+
+STYLESHEET = "report.css"
+"""Package data of pimbot.analysis: the page's style; each verdict kind is a CSS class."""
+
+
+def stylesheet() -> str:
+    return resources.files("pimbot.analysis").joinpath(STYLESHEET).read_text(encoding="utf-8")
+
+
+def render(report: Report, out: Path) -> str:
+    """The page; `out` is the report directory the figures' PNGs are read from."""
+    anchors = layout.headings(report)
+
+    def titled(table: Table) -> str:
+        rendered = html_table(table)
+        if table.title:
+            target = anchors[table.title].pop(0)
+            rendered = rendered.replace("<h3>", f"<h3 id='{target}'>", 1)
+        return rendered
+
+    parts = [
+        "<!DOCTYPE html><html><head><meta charset='utf-8'><title>pimbot report</title>",
+        f"<style>\n{stylesheet()}</style></head><body><h1>pimbot: {report.kind} report</h1>",
+    ]
+    parts += [f"<p>{html.escape(p)}</p>" for p in layout.intro(report)]
+    parts.append(contents(report))
+    parts += section_html(report.provenance, out, anchors, titled)
+    if report.claims:
+        parts += [f"<h2 id='{anchors['Claims'].pop(0)}'>Claims</h2>", claims_html(report.claims)]
+        if report.numbers is not None:
+            parts.append(titled(report.numbers))
+    for section in report.sections:
+        parts += section_html(section, out, anchors, titled)
+    parts.append("</body></html>")
+    return "\n".join(parts)
+
+
+def section_html(section: Section, out: Path, anchors: dict, titled) -> list[str]:
+    """A section's heading, paragraphs, figures (embedded PNG, caption, SVG link) and
+    tables (`titled` writes one with its heading's anchor)."""
+    parts = [f"<h2 id='{anchors[section.title].pop(0)}'>{html.escape(section.title)}</h2>"]
+    parts += [f"<p>{html.escape(p)}</p>" for p in section.text]
+    for figure in section.figures:
+        data = base64.b64encode((out / figure.path).read_bytes()).decode()
+        parts.append(
+            f"<figure id='{figure.anchor}'><img alt='{html.escape(figure.caption)}' "
+            f"src='data:image/png;base64,{data}'><figcaption>"
+            f"{html.escape(figure.caption)} (vector: <a href='{figure.svg.as_posix()}'>"
+            "SVG</a>)</figcaption></figure>"
+        )
+    parts += [titled(t) for t in section.tables]
+    return parts
+
+
+def contents(report: Report) -> str:
+    """The table of contents as nested lists."""
+    parts, level = ["<nav class='toc'><b>Contents</b><ul>"], 1
+    for depth, text, anchor in layout.outline(report):
+        if depth > level:
+            parts.append("<ul>")
+        elif depth < level:
+            parts.append("</ul></li>")
+        elif parts[-1] != "<nav class='toc'><b>Contents</b><ul>":
+            parts.append("</li>")
+        level = depth
+        parts.append(f"<li><a href='#{anchor}'>{html.escape(text)}</a>")
+    parts.append("</li></ul></li>" if level > 1 else "</li>")
+    parts.append("</ul></nav>")
+    return "".join(parts)
+
+
+def verdict_cell(claim: Claim) -> str:
+    verdict = claim.verdict
+    reason = layout.reason(claim)
+    why = f"<br><span class='reason'>{html.escape(reason)}</span>" if reason else ""
+    return (
+        f"<td class='verdict {verdict.kind}'><span class='mark'>{MARKERS[verdict.kind]}</span> "
+        f"{html.escape(verdict.label)}{why}</td>"
+    )
+
+
+def claims_html(claims: list[Claim]) -> str:
+    """The claims table, its verdict legend and every number measured in full."""
+    head = "".join(f"<th>{h}</th>" for h in layout.CLAIMS_HEADER)
+    rows = []
+    for c in claims:
+        measured = html.escape(layout.measured_cell(c))
+        if layout.has_details(c):
+            measured += f" <a href='#{layout.claim_anchor(c)}'>details</a>"
+        rows.append(
+            f"<tr><td>{html.escape(c.id)}</td><td>{html.escape(c.claim)}</td>"
+            f"<td class='rule'>{html.escape(c.rule)}</td><td class='measured'>{measured}</td>"
+            f"{verdict_cell(c)}</tr>"
+        )
+    legend = "".join(
+        f"<span class='{kind}'>{MARKERS[kind]} {html.escape(text)}</span>"
+        for kind, text in layout.VERDICT_LEGEND.items()
+    )
+    parts = [f"<table class='claims'><tr>{head}</tr>{''.join(rows)}</table>"]
+    parts.append(f"<p class='legend'>Verdicts: {legend}</p>")
+    details = [c for c in claims if layout.has_details(c)]
+    if details:
+        items = "".join(
+            f"<li id='{layout.claim_anchor(c)}'><b>{html.escape(c.id)}</b>: "
+            f"{html.escape(layout.in_full(c))}</li>"
+            for c in details
+        )
+        parts.append(f"<p>Measured, in full:</p><ul class='details'>{items}</ul>")
+    return "".join(parts)
