@@ -87,6 +87,28 @@ def test_registry_lists_every_env():
     }
 
 
+def test_env_entries_hold_how_runs_are_evaluated_and_the_action_names():
+    room, ipd = envs.spec("escape_room-v0"), envs.spec("ipd-v0")
+    assert (room.eval_period, room.eval_episodes) == (100, 10)  # the original ER configs
+    for env_id in ("escape_room_transfer-v0", "ipd-v0", "stag_hunt-v0", "stag_hunt_matrix-v0"):
+        entry = envs.spec(env_id)  # none declared: the registry's fallback
+        assert (entry.eval_period, entry.eval_episodes) == (1000, 10), env_id
+    assert [room.action_names[a] for a in (LEVER, START, DOOR)] == ["lever", "start", "door"]
+    assert [ipd.action_names[a] for a in (COOPERATE, DEFECT)] == ["C", "D"]
+    for env_id in envs.registered():
+        names = envs.spec(env_id).action_names
+        assert not names or len(names) == envs.make(env_id).num_actions, env_id
+    assert envs.ids_of(EscapeRoom) == ["escape_room-v0"]
+
+
+def test_register_refuses_an_evaluation_that_is_no_positive_integer():
+    with pytest.raises(InvalidParameter, match="^eval_period: must be an integer ≥ 1, got 0"):
+        envs.register("bad_eval-v0", EscapeRoom, "never registered", eval_period=0)
+    with pytest.raises(InvalidParameter, match="^eval_episodes: must be an integer ≥ 1"):
+        envs.register("bad_eval-v0", EscapeRoom, "never registered", eval_episodes=2.5)
+    assert "bad_eval-v0" not in envs.registered()
+
+
 @pytest.mark.parametrize("env_id", envs.registered())
 def test_check_env_registered(env_id):
     envs.check_env(envs.make(env_id))
@@ -132,6 +154,37 @@ class _TracesAShape(EscapeRoom):
 def test_check_env_catches_a_traced_field_used_as_a_shape():
     with pytest.raises(AssertionError, match=r"traced_fields \('n_agents',\): reset or step"):
         envs.check_env(_TracesAShape())
+
+
+class _DeclaresTracedButIsNoPytree(envs.IteratedPrisonersDilemma):
+    traced_fields = ("max_steps",)  # a value in `step`, but no `TracedFields` env
+
+
+def test_check_env_catches_traced_fields_of_an_env_that_is_no_pytree_of_them():
+    with pytest.raises(AssertionError, match=r"traced_fields \('max_steps',\) but it is no pytree"):
+        envs.check_env(_DeclaresTracedButIsNoPytree())
+
+
+@pytest.mark.parametrize(
+    "env",
+    [EscapeRoom(4, 3), EscapeRoomWithTransfer(n_agents=4, min_at_lever=2, transfer=0.3)],
+    ids=["escape_room", "escape_room_transfer"],
+)
+def test_an_escape_room_is_a_pytree_of_its_traced_fields(env):
+    """The leaves are the traced fields (M), the treedef is the class and every other field;
+    rebuilding one does not rerun the validation (a tracer or placeholder for M would fail
+    it): the numbers are checked once, when the env is made."""
+    leaves, treedef = jax.tree.flatten(env)
+    assert leaves == [env.min_at_lever]
+    other = dataclasses.replace(env, min_at_lever=1)
+    assert jax.tree.structure(other) == treedef  # M is no part of the structure
+    assert jax.tree.unflatten(treedef, [1]) == other
+    assert hash(jax.tree.unflatten(treedef, [1])) == hash(other)
+    assert jax.tree.map(lambda _: None, env).min_at_lever is None  # not validated
+    assert jax.jit(lambda e: e.min_at_lever * 2)(env) == 2 * env.min_at_lever
+    assert jax.tree.leaves(jax.tree.map(jnp.asarray, env))[0].dtype == jnp.int32
+    with pytest.raises(InvalidParameter, match="min_at_lever"):
+        dataclasses.replace(env, min_at_lever=env.n_agents)  # made: validated
 
 
 def test_check_env_catches_wrong_reward_shape():

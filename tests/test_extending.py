@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 from pimbot import attacks, cli, defenses, envs, learners, plugins
+from pimbot.contracts import learner as learner_contract
 from pimbot.contracts.attack import Outcome
 from pimbot.contracts.defense import IncentiveContext
 from pimbot.contracts.rollout import rollout
@@ -286,6 +287,19 @@ def test_tiny_env_learner_defaults_are_the_runs_config(clean_pgg):
         assert used[name] == (list(value) if isinstance(value, tuple) else value), name
     pg = learners.default_config("pg", PGG)
     assert all(getattr(pg, name) == value for name, value in declared["pg"].items())
+
+
+def test_a_learners_entry_declares_over_what_the_plugin_env_declared():
+    declared = envs.spec(PGG).learner_defaults["pg"]
+    saved = learners.get("pg")
+    try:
+        learners.set_env_defaults("pg", PGG, lr_policy=0.5)  # no env registered again
+        pg = learners.default_config("pg", PGG)
+    finally:
+        learner_contract.register(saved, replace=True)
+    assert pg.lr_policy == 0.5
+    assert all(getattr(pg, k) == v for k, v in declared.items() if k != "lr_policy")
+    assert learners.default_config("pg", PGG).lr_policy == declared["lr_policy"]
 
 
 # --- all four in one grid, and the report -----------------------------------------------

@@ -1,4 +1,4 @@
-"""Manipulations of one agent (spec/attacks.md): strategy attacks, ADMO and the
+"""Manipulations of one agent (docs/attacks.md): strategy attacks, ADMO and the
 published code's ADMO (`admo_code`), by name.
 
 `make(name, num_agents, **params)` builds a validated attack config;
@@ -11,6 +11,7 @@ from __future__ import annotations
 from typing import Any
 
 from pimbot.attacks.admo import ADMO
+from pimbot.attacks.admo import MODES as ADMO_MODES
 from pimbot.attacks.admo_code import ADMOCode
 from pimbot.attacks.strategies import Bypass, FakeIncentive, Reverse, SelfCentered
 from pimbot.contracts import attack as contract
@@ -19,20 +20,6 @@ from pimbot.envs.core import InvalidParameter
 
 for _cls in (SelfCentered, FakeIncentive, Bypass, Reverse, ADMO, ADMOCode):
     register(_cls, replace=True)
-
-CONDITION_ORDER = (
-    "clean",
-    "self_centered",
-    "fake_incentive",
-    "bypass",
-    "reverse",
-    "admo_stealthy",
-    "admo_disrupt",
-    "admo_code_stealthy",
-    "admo_code_disrupt",
-)
-"""The paper's display order of run conditions (attack labels); for sorting only —
-conditions not in it (a plugin's) sort after it, by name."""
 
 
 def registered() -> list[str]:
@@ -46,6 +33,22 @@ def attack_class(name: str) -> type[Attack]:
 def parameters(name: str) -> dict[str, Any]:
     """The attack's parameters and their defaults."""
     return contract.parameters(attack_class(name))
+
+
+def conditions(name: str) -> tuple[str, ...]:
+    """Attack `name`'s run conditions as reports label them (`analysis.runs.
+    condition_label`): its name, or, for an attack with a text `mode` parameter, one per
+    mode of the paper's ADMO (`admo.MODES`: stealthy, then disrupt), ``<name>_<mode>``."""
+    if isinstance(parameters(name).get("mode"), str):
+        return tuple(f"{name}_{mode}" for mode in ADMO_MODES)
+    return (name,)
+
+
+CONDITION_ORDER = ("clean", *(c for name in registered() for c in conditions(name)))
+"""The paper's display order of run conditions (attack labels): clean, then the built-in
+attacks in their order of registration above (`conditions`). For sorting only:
+conditions not in it (a plugin's, or one with numeric parameters set) sort after it, by
+name."""
 
 
 def make(name: str, num_agents: int, **params: Any) -> Attack:

@@ -4,7 +4,9 @@ An attack whose static `mode` field is used only through its `sign` (a float) gi
 `program_form` as a subclass with that sign as a traced leaf, `traced_sign`, and the
 static mode set to a fixed placeholder: every mode then lowers to one program text.
 The subclass is `class ProgramX(TracedSign, X)` declaring `traced_sign: Any = <the
-placeholder's sign>`; `with_traced_sign` builds it from an X.
+placeholder's sign>`, a data field of the flax struct (a pytree leaf, traced where the
+program takes the form as an argument, as an env's `traced_fields` are); `with_traced_sign`
+builds it from an X with its constructor.
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from pimbot.envs.core import Env, step_metric_names, traced_fields, traced_values, with_traced
+from pimbot.envs.core import Env, program_env, step_metric_names, traced_fields
 
 _PROTOCOL_FLAGS = ("incentive_obs", "stochastic", "terminates_on_success")
 
@@ -108,15 +108,17 @@ def _rollout(env: Env, key: jax.Array, actions: jax.Array) -> dict[str, Any]:
 
 
 def _check_traced_fields(env: Env, key: jax.Array, actions: jax.Array, expected) -> None:
-    """The rollout with the traced fields as traced arguments (as a training program
-    takes them) equals the rollout with them compiled in."""
+    """The env passed as an argument (as a training program takes it: its traced fields
+    traced) gives the rollout it gives with them compiled in."""
     fields = traced_fields(env)
     if not fields:
         return
-    values = traced_values(env)
-    rollout = jax.jit(lambda v, k, a: _rollout(with_traced(env, v), k, a))
+    argument = program_env(env)
+    assert argument is not None and jax.tree.leaves(argument) == [
+        getattr(env, name) for name in fields
+    ], f"{env}: traced_fields {fields} but it is no pytree of them (see envs.core.TracedFields)"
     try:
-        got = rollout(values, key, actions)
+        got = jax.jit(_rollout)(argument, key, actions)
     except Exception as error:  # a tracer where a concrete value was needed
         raise AssertionError(
             f"{env}: traced_fields {fields}: reset or step uses one as a static value "

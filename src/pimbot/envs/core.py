@@ -8,13 +8,12 @@ vmap-able. Variants are parameters, never copied classes.
 
 from __future__ import annotations
 
-import copy
 import dataclasses
+import functools
 from collections.abc import Callable, Mapping
-from typing import Any, Protocol
+from typing import Any, ClassVar, Protocol
 
 import jax
-import numpy as np
 
 from pimbot.errors import InvalidParameter, check_int  # noqa: F401 (public here too)
 
@@ -42,10 +41,10 @@ class Env(Protocol):
     or [N], numbers or bools) are summed over each episode's steps and reported by
     every learner as evaluation metrics of those names (``eval/<name>``, per agent
     ``eval/<name>/agent_<i>``); see `step_metric_names`. Optional: ``traced_fields``
-    (a class attribute), numeric fields used only as values in `reset` and `step` (never
-    in a shape or Python control flow): training programs take them as traced arguments,
-    so runs that differ only in them share one compiled program
-    (`traced_values`, `with_traced`).
+    (a class attribute of a `TracedFields` env), numeric fields used only as values in
+    `reset` and `step` (never in a shape or Python control flow): the env is a pytree whose
+    leaves are those fields, a training program takes it as an argument, and runs that
+    differ only in them share one compiled program.
     """
 
     num_agents: int
@@ -87,41 +86,85 @@ class Env(Protocol):
         ...
 
 
+class TracedFields:
+    """Base of an env whose numbers are a compiled program's arguments: a pytree whose leaves
+    are the fields its class names in `traced_fields` and whose static part (the treedef)
+    is its class and every other field. This is the data/meta split of
+    `jax.tree_util.register_dataclass` and of the attacks' `flax.struct` (numbers are data,
+    structure is meta), and gymnax's `EnvParams`: passed into `jax.jit`, the numbers are
+    traced and the structure is static, so envs that differ only in them share a program.
+
+    Unflattening does not call `__init__`: the leaves are then tracers (or the placeholders
+    JAX passes while it transforms), and the env's validation (`__post_init__`) ran once,
+    when the env was made. The new instance gets its fields as `pickle` restores an
+    instance, following the custom-pytree guidance of JAX
+    (https://docs.jax.dev/en/latest/custom_pytrees.html, "initialization with unexpected
+    values"); no existing env is changed. Subclasses are registered when they are defined.
+    """
+
+    traced_fields: ClassVar[tuple[str, ...]] = ()
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        jax.tree_util.register_pytree_with_keys(
+            cls, _flatten_with_keys, functools.partial(_unflatten, cls), _flatten
+        )
+
+
+def _split(env: TracedFields) -> tuple[tuple[str, ...], tuple[tuple[str, Any], ...]]:
+    """(the traced field names, every other field's (name, value)): the treedef's part."""
+    names = tuple(type(env).traced_fields)
+    static = tuple(
+        (f.name, getattr(env, f.name)) for f in dataclasses.fields(env) if f.name not in names
+    )
+    return names, static
+
+
+def _flatten(env: TracedFields):
+    names, static = _split(env)
+    return tuple(getattr(env, name) for name in names), (names, static)
+
+
+def _flatten_with_keys(env: TracedFields):
+    names, static = _split(env)
+    keyed = tuple((jax.tree_util.GetAttrKey(name), getattr(env, name)) for name in names)
+    return keyed, (names, static)
+
+
+def _unflatten(cls: type, aux, leaves) -> Any:
+    """A new `cls` with these fields, `__init__` not called (see `TracedFields`)."""
+    names, static = aux
+    env = object.__new__(cls)
+    vars(env).update(static)
+    vars(env).update(zip(names, leaves, strict=True))
+    return env
+
+
 def traced_fields(env: Env) -> tuple[str, ...]:
     """The fields `env` declares traced (`Env.traced_fields`; none by default)."""
     return tuple(getattr(env, "traced_fields", ()))
 
 
-def traced_values(env: Env) -> dict[str, np.ndarray]:
-    """Each traced field's value as a 0-d bool, int32 or float32 array (a program's
-    traced argument); a field that is no bool, int or float is refused by name."""
-    values: dict[str, np.ndarray] = {}
+def _check_traced_numbers(env: Env) -> None:
+    """Refuses by name a traced field that is no bool, int or float (it would trace as some
+    other pytree, or not at all)."""
     for name in traced_fields(env):
         value = getattr(env, name, None)
-        if isinstance(value, bool):
-            values[name] = np.bool_(value)
-        elif isinstance(value, int):
-            values[name] = np.int32(value)
-        elif isinstance(value, float):
-            values[name] = np.float32(value)
-        else:
+        if not isinstance(value, (bool, int, float)):
             raise InvalidParameter(
                 f"{type(env).__name__}.traced_fields: {name} must be a bool, int or float "
                 f"field, got {value!r}"
             )
-    return values
 
 
-def with_traced(env: Env, values: Mapping[str, Any]) -> Env:
-    """`env` with its traced fields set to `values` (tracers inside a program; its
-    validation is not rerun: the values were validated when it was made)."""
-    fields = traced_fields(env)
-    if not fields:
-        return env
-    traced = copy.copy(env)
-    for name in fields:
-        object.__setattr__(traced, name, values[name])
-    return traced
+def program_env(env: Env) -> Env | None:
+    """What a compiled program takes for `env`: the env itself where it is a `TracedFields`
+    pytree (its traced fields become the program's traced arguments), else None: an env
+    without traced numbers is all structure, and the program closes over it."""
+    if not isinstance(env, TracedFields):
+        return None
+    _check_traced_numbers(env)
+    return env
 
 
 def step_metric_names(env: Env) -> tuple[str, ...]:
@@ -129,19 +172,42 @@ def step_metric_names(env: Env) -> tuple[str, ...]:
     return tuple(getattr(env, "step_metrics", ()))
 
 
+FALLBACK_EVAL_PERIOD = 1000
+"""Training iterations between evaluations on an env that declares none."""
+FALLBACK_EVAL_EPISODES = 10
+"""Episodes per evaluation point on an env that declares none."""
+
+
 @dataclasses.dataclass(frozen=True)
 class EnvSpec:
-    """A registry entry: the id, the constructor, a one-line description, and the
-    hyperparameters each learner should default to on this environment."""
+    """A registry entry: the id, the constructor, a one-line description, and the facts of
+    the environment that are no parameter of it (how it is evaluated, its action names).
+
+    Which learner hyperparameters suit an env is declared by whichever of the two is
+    registered later, as it knows the other: the built-in learners declare theirs for the
+    built-in envs in their registry entries (`pimbot.contracts.learner.LearnerDef.
+    env_defaults`, `env_params`); a plugin env declares the learners' defaults on it here
+    (`learner_defaults`, `learner_env_defaults`); a learner's entry wins where both name a
+    field. Its best team return, where known, depends on the parameters: the env object's
+    optional ``optimal_team_return`` (e.g. `EscapeRoom`).
+    """
 
     env_id: str
     constructor: Callable[..., Env]
     description: str
     learner_defaults: Mapping[str, Mapping[str, Any]] = dataclasses.field(default_factory=dict)
-    """learner name -> hyperparameter overrides of its base config on this environment."""
+    """learner name -> hyperparameter overrides of its base config on this environment,
+    as the env's author declares them (a plugin env; see the class docstring)."""
     learner_env_defaults: Mapping[str, Mapping[str, Any]] = dataclasses.field(default_factory=dict)
-    """learner name -> env parameters a run of that learner uses where the user gave none
-    (e.g. the Reciprocator's 32-step IPD episodes)."""
+    """learner name -> env parameters a run of that learner uses where the user gave none,
+    as the env's author declares them."""
+    eval_period: int = FALLBACK_EVAL_PERIOD
+    """Training iterations between evaluations where a run names none (a shorter run is
+    evaluated once, at its end)."""
+    eval_episodes: int = FALLBACK_EVAL_EPISODES
+    """Episodes per evaluation point where a run names none."""
+    action_names: tuple[str, ...] = ()
+    """Each action's name by index, for reports (none: reports write ``a<index>``)."""
 
     def parameters(self) -> dict[str, Any]:
         """The constructor's parameters with their defaults."""
@@ -161,22 +227,34 @@ def register(
     description: str,
     learner_defaults: Mapping[str, Mapping[str, Any]] | None = None,
     learner_env_defaults: Mapping[str, Mapping[str, Any]] | None = None,
+    *,
+    eval_period: int = FALLBACK_EVAL_PERIOD,
+    eval_episodes: int = FALLBACK_EVAL_EPISODES,
+    action_names: tuple[str, ...] = (),
 ) -> None:
     """Adds an environment constructor under a versioned id (e.g. ``"my_env-v0"``).
 
     Args:
         learner_defaults: per learner name, the hyperparameters it should use here
             (e.g. ``{"lio": {"lr_policy": 1e-3}}``); learners not named keep their base
-            config.
+            config (or what their registry entries declare for this id).
         learner_env_defaults: per learner name, env parameters its runs default to
             (e.g. ``{"reciprocator": {"max_steps": 32}}``); a parameter the run gives wins.
+        eval_period, eval_episodes: how runs on this env are evaluated where they name
+            no other (`EnvSpec`).
+        action_names: each action's name by index (`EnvSpec.action_names`).
     """
+    check_int("eval_period", eval_period, 1)
+    check_int("eval_episodes", eval_episodes, 1)
     entry = EnvSpec(
         env_id,
         constructor,
         description,
         dict(learner_defaults or {}),
         {name: dict(params) for name, params in (learner_env_defaults or {}).items()},
+        eval_period,
+        eval_episodes,
+        tuple(action_names),
     )
     if env_id in _REGISTRY and _REGISTRY[env_id] != entry:
         raise ValueError(f"env id {env_id!r} is already registered")
@@ -195,6 +273,12 @@ def spec(env_id: str) -> EnvSpec:
             f"env_id: unknown environment {env_id!r}; registered: {', '.join(registered())}"
         )
     return _REGISTRY[env_id]
+
+
+def ids_of(constructor: Callable[..., Env]) -> list[str]:
+    """The ids `constructor` is registered under, sorted (code written for one env class,
+    such as the robot case study's Escape Room, finds its id here rather than naming it)."""
+    return sorted(i for i, entry in _REGISTRY.items() if entry.constructor is constructor)
 
 
 def make(env_id: str, **params: Any) -> Env:

@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from pimbot.envs.core import InvalidParameter, check_int
+from pimbot.envs.core import InvalidParameter, TracedFields, check_int
 
 LEVER, START, DOOR = 0, 1, 2
 NUM_POSITIONS = 3
@@ -45,7 +45,7 @@ class EscapeRoomState:
 
 
 @dataclasses.dataclass(frozen=True)
-class EscapeRoom:
+class EscapeRoom(TracedFields):
     """ER(N, M): N agents, the door opens while at least M of them pull the lever."""
 
     n_agents: int = 2
@@ -63,7 +63,8 @@ class EscapeRoom:
     terminates_on_success: bool = dataclasses.field(default=True, init=False)
     step_metrics: tuple[str, ...] = dataclasses.field(default=("exit_success",), init=False)
     traced_fields: ClassVar[tuple[str, ...]] = ("min_at_lever",)
-    """M is a value in `step` only: ER(N, M) for every M runs on one compiled program."""
+    """M is a value in `step` only: the env is a pytree whose one leaf is M (`TracedFields`),
+    so ER(N, M) for every M runs on one compiled program."""
 
     def __post_init__(self) -> None:
         check_int("n_agents", self.n_agents, 2)

@@ -1,6 +1,6 @@
 """Stag Hunt gridworld — `stag_hunt-v0`: N hunters, one stag and N hares on a square grid.
 
-The rules of the N-player Stag Hunt in the PIMbot code (spec/environments.md).
+The rules of the N-player Stag Hunt in the PIMbot code (docs/environments.md).
 Cells are (x, y) with 0 ≤ x, y < grid_size; all entities start at uniformly
 random cells (overlaps allowed). Actions: 0 up (y - 1), 1 down (y + 1),
 2 left (x - 1), 3 right (x + 1), 4 stay; moves are clipped at the walls.

@@ -18,7 +18,7 @@ import json
 import sys
 from pathlib import Path
 
-from pimbot import statistics
+from pimbot import envs, statistics
 from pimbot.attacks import CONDITION_ORDER
 from pimbot.training import store
 
@@ -26,12 +26,14 @@ ENV_ORDER = {"ER(2,1)": 0, "ER(4,2)": 1, "ER(4,3)": 2}
 
 
 def escape_room_runs(runs_dir: Path) -> list[Path]:
-    """Run directories under `runs_dir` (one level) trained on escape_room-v0, with a checkpoint."""
+    """Run directories under `runs_dir` (one level) trained on the Escape Room (the id
+    `envs.EscapeRoom` is registered under: the robots play its rules), with a checkpoint."""
     found = []
+    room_ids = envs.ids_of(envs.EscapeRoom)
     for config_path in sorted(Path(runs_dir).glob("*/config.json")):
         config = store.read_json(config_path)
         if (
-            config.get("env", {}).get("id") == "escape_room-v0"
+            config.get("env", {}).get("id") in room_ids
             and (config_path.parent / store.CHECKPOINT_DIR).exists()
         ):
             found.append(config_path.parent)

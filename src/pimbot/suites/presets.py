@@ -16,14 +16,14 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
+from pimbot import envs
 from pimbot.profiling.decision_loop import ProfileConfig
 from pimbot.suites import grid
 from pimbot.suites.jobs import Job
-from pimbot.training.config import DEFAULT_EVAL, FALLBACK_EVAL
 
 SHARED_UPDATES = (("incentive_updates", "shared"),)
 """N ≥ 3 LIO runs use the original code's shared incentive updates (the default, named
-explicitly where it matters; README, Decisions)."""
+explicitly where it matters; docs/deviations.md)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -121,7 +121,7 @@ def scaled(setting: Setting, scale: Scale) -> tuple[int, int | None]:
     """(iterations, eval_period) of `setting` under `scale`, keeping ≥ min_evals points."""
     if scale.iteration_fraction == 1.0:
         return setting.iterations, setting.eval_period
-    period = setting.eval_period or DEFAULT_EVAL.get(setting.env_id, FALLBACK_EVAL)[0]
+    period = setting.eval_period or envs.spec(setting.env_id).eval_period
     iterations = int(setting.iterations * scale.iteration_fraction)
     evals = max(scale.min_evals, iterations // period)
     eval_period = max(1, iterations // evals)

@@ -16,11 +16,6 @@ from pimbot.contracts.attack import NO_ATTACK
 from pimbot.contracts.params import check_fields
 from pimbot.errors import InvalidParameter, check_int
 
-DEFAULT_EVAL = {  # (eval_period, eval_episodes) by environment family, as the original
-    "escape_room-v0": (100, 10),
-}
-FALLBACK_EVAL = (1000, 10)
-
 
 @dataclasses.dataclass(frozen=True)
 class RunConfig:
@@ -30,7 +25,7 @@ class RunConfig:
     """Registered environment id (see `pimbot envs`)."""
     env_params: tuple[tuple[str, Any], ...] = ()
     """Environment parameters as sorted (name, value) pairs."""
-    learner: str = "lio"
+    learner: str = learners.DEFAULT_LEARNER
     """Learner name (see `pimbot learners`)."""
     hparams: tuple[tuple[str, Any], ...] = ()
     """Overrides of the learner's per-environment default hyperparameters."""
@@ -41,10 +36,10 @@ class RunConfig:
     iterations: int = 50_000
     """Training iterations per seed (one LIO iteration = two episodes)."""
     eval_period: int | None = None
-    """Iterations between evaluations; None = the environment's default (ER 100, else 1000;
-    a shorter run is evaluated once, at its end)."""
+    """Iterations between evaluations; None = the environment's (`EnvSpec.eval_period`: ER
+    100, else 1000; a shorter run is evaluated once, at its end)."""
     eval_episodes: int | None = None
-    """Evaluation episodes per evaluation point; None = 10."""
+    """Evaluation episodes per evaluation point; None = the environment's (10)."""
     attack: str | None = None
     """Manipulation of one agent (see `pimbot attacks`); None = clean."""
     attack_params: tuple[tuple[str, Any], ...] = ()
@@ -53,7 +48,8 @@ class RunConfig:
     """Training-time defenses (see `pimbot defenses`) as (name, sorted (param, value) pairs)."""
 
     def resolved_eval(self) -> tuple[int, int]:
-        period, episodes = DEFAULT_EVAL.get(self.env_id, FALLBACK_EVAL)
+        entry = envs.spec(self.env_id)
+        period, episodes = entry.eval_period, entry.eval_episodes
         # a run shorter than the default period is evaluated once, at its end
         return (
             self.eval_period if self.eval_period is not None else min(period, self.iterations),
@@ -107,10 +103,9 @@ def env_parameters(env: Any) -> dict[str, Any]:
 
 
 def env_arguments(run: RunConfig, learner: learners.LearnerDef) -> dict[str, Any]:
-    """The run's env parameters over the env's declared defaults for its learner (those of
-    the learner whose env defaults it shares, as NL the Reciprocator's)."""
-    declared = envs.spec(run.env_id).learner_env_defaults
-    return dict(declared.get(learner.env_defaults_of or learner.name, {})) | dict(run.env_params)
+    """The run's env parameters over those declared for its learner on its env
+    (`LearnerDef.default_env_params`: NL takes the Reciprocator's)."""
+    return learner.default_env_params(envs.spec(run.env_id)) | dict(run.env_params)
 
 
 def resolve(run: RunConfig) -> ResolvedRun:

@@ -15,11 +15,13 @@ An attack's `program_form` is what the program is compiled for: a static field
 that only selects a number becomes a traced leaf there (ADMO's mode, a ±1
 sign), so jobs that differ only in it share one program too.
 
-An env's `traced_fields` (optional) name the numbers its compiled code uses only
-as values, never in a shape or in Python control flow (Escape Room's M): the
-program takes them, and the env's known optimal team return, as traced
-arguments (`env_numbers`) and runs on `envs.core.with_traced(env, numbers)`, so ER(4, 2)
-and ER(4, 3) share one program.
+Envs follow the same rule: an env whose class is an `envs.core.TracedFields` is a pytree
+whose leaves are its `traced_fields`, the numbers its compiled code uses only as values,
+never in a shape or in Python control flow (Escape Room's M), and whose treedef is its
+class and every other field. The program takes the env itself as an argument
+(`envs.core.program_env`), and the reciprocal of its known optimal team return and the
+optimal-rate threshold beside it (`optimum_numbers`), so ER(4, 2) and ER(4, 3) share one
+program. An env that is no `TracedFields` has no traced numbers: the program closes over it.
 """
 
 from __future__ import annotations
@@ -33,38 +35,40 @@ import numpy as np
 from pimbot.attacks import strategy_union
 from pimbot.attacks.strategy_union import structure
 from pimbot.contracts.attack import Attack
-from pimbot.envs.core import traced_fields, traced_values, with_traced
+from pimbot.envs.core import program_env
 from pimbot.training.config import ResolvedRun
 
 
-def env_numbers(env: Any) -> dict[str, Any]:
-    """The traced numbers of `env`'s program: its traced fields (`envs.core.traced_values`)
-    and, where the env knows its optimal team return, that return's reciprocal and the
-    optimal-rate threshold 0.9 × it."""
-    numbers: dict[str, Any] = traced_values(env)
+def optimum_numbers(env: Any) -> dict[str, np.float32]:
+    """Where `env` knows its optimal team return (from its numbers, on the host): that
+    return's reciprocal and the optimal-rate threshold 0.9 × it, traced arguments of the
+    program beside the env; else none."""
     optimum = getattr(env, "optimal_team_return", None)
-    if optimum:
-        # XLA turns a division by a constant into a product with its float32 reciprocal;
-        # the ratio is that product, so it stays bitwise what it was with the optimum
-        # compiled in
-        numbers["optimal_team_return_reciprocal"] = np.float32(1.0) / np.float32(optimum)
-        numbers["optimal_threshold"] = np.float32(0.9 * optimum)
-    return numbers
+    if not optimum:
+        return {}
+    # XLA turns a division by a constant into a product with its float32 reciprocal; the
+    # ratio is that product, so it stays bitwise what it was with the optimum compiled in
+    return {
+        "optimal_team_return_reciprocal": np.float32(1.0) / np.float32(optimum),
+        "optimal_threshold": np.float32(0.9 * optimum),
+    }
 
 
-def _env_structure(env: Any) -> str:
-    """`env`'s repr with its traced fields left out (their values are arguments)."""
-    return repr(with_traced(env, {name: "<traced>" for name in traced_fields(env)}))
+def _env_structure(env: Any) -> tuple:
+    """What of `env` the program is compiled for: the structure of the env it takes as an
+    argument (its class and static fields), or all of an env it closes over (its repr)."""
+    argument = program_env(env)
+    closed_over = repr(env) if argument is None else None
+    return closed_over, structure(argument), structure(optimum_numbers(env))
 
 
 def _closed_over(resolved: ResolvedRun, periods: int, seeds: int, devices: int) -> tuple:
-    """What the chunk closes over, besides the attack, the defenses and the env's
-    traced numbers (their structure is part of the key)."""
+    """What the chunk closes over, besides the attack, the defenses and the env's traced
+    numbers (their structure is part of the key)."""
     return (
         type(resolved.env).__module__,
         type(resolved.env).__qualname__,
         _env_structure(resolved.env),
-        structure(env_numbers(resolved.env)),
         resolved.run.learner,
         repr(resolved.learner_config),
         resolved.eval_period,
