@@ -1,4 +1,4 @@
-"""Attacks: each hook does exactly what spec/attacks.md says, under jit and vmap."""
+"""Attacks: each hook does exactly what docs/attacks.md says, under jit and vmap."""
 
 import dataclasses
 

@@ -191,9 +191,7 @@ def test_runs_differing_only_in_attack_or_defense_numbers_share_one_program(atta
     states = runner.init_states(first, keys)
     fn = runner.make_chunk_fn(first, 1)
     texts = [
-        fn.lower(
-            states, keys, r.attack.program_form(), r.defenses, programs.env_numbers(r.env)
-        ).as_text()
+        fn.lower(states, keys, r.attack.program_form(), *runner.program_args(r)[1:]).as_text()
         for r in (first, second)
     ]
     assert texts[0] == texts[1]
@@ -221,10 +219,8 @@ def test_admo_modes_share_one_program_and_give_what_the_static_mode_gives():
     for mode, r in resolved.items():
         assert type(r.attack.program_form()) is not type(r.attack)
         states = runner.init_states(r, keys)
-        numbers = programs.env_numbers(r.env)
-        shared[mode] = jax.tree.leaves(
-            shared_fn(states, keys, r.attack.program_form(), r.defenses, numbers)
-        )
+        rest = runner.program_args(r)[1:]  # the defenses, the env, its optimum's numbers
+        shared[mode] = jax.tree.leaves(shared_fn(states, keys, r.attack.program_form(), *rest))
     assert shared_fn._cache_size() == 1  # one program for both modes
     r = resolved["stealthy"]
     own = runner.make_chunk_fn(r, 1)(runner.init_states(r, keys), keys, *runner.program_args(r))
@@ -236,10 +232,11 @@ def test_admo_modes_share_one_program_and_give_what_the_static_mode_gives():
 
 
 def test_escape_rooms_differing_only_in_m_share_one_program_and_keep_their_own_m():
-    """Escape Room's M is a traced field (`traced_fields`): ER(4, 2) and ER(4, 3) have one
-    program key and run on one compiled chunk, where ER(4, 3) gives bitwise what its own
-    chunk gives (M = 2 compiled into the shared one would show here) and not what
-    ER(4, 2) gives."""
+    """Escape Room's M is a traced field (`traced_fields`: the env is a pytree whose leaf is
+    M): ER(4, 2) and ER(4, 3) have one program key and run on one compiled chunk, where
+    ER(4, 3) gives bitwise what its own chunk gives (M = 2 compiled into the shared one
+    would show here) and not what ER(4, 2) gives; the optimum's numbers are computed on
+    the host, and the env's validation is not rerun on the tracers."""
     import jax
 
     from pimbot.training.config import resolve
@@ -253,7 +250,12 @@ def test_escape_rooms_differing_only_in_m_share_one_program_and_keep_their_own_m
 
     first, second = er4(2), er4(3)
     assert programs.program_key(first, 1, 2) == programs.program_key(second, 1, 2)
-    assert programs.env_numbers(second.env)["min_at_lever"] == 3
+    env_argument = runner.program_args(second)[2]
+    assert env_argument is second.env and jax.tree.leaves(env_argument) == [3]
+    assert programs.optimum_numbers(second.env) == {
+        "optimal_team_return_reciprocal": np.float32(1) / np.float32(7),
+        "optimal_threshold": np.float32(0.9 * 7),
+    }
     keys = runner.seed_keys(0, 2)
     shared_fn = runner.make_chunk_fn(first, 2)
     shared = {
@@ -270,21 +272,21 @@ def test_escape_rooms_differing_only_in_m_share_one_program_and_keep_their_own_m
     assert any(not np.array_equal(a, b) for a, b in zip(shared[2], shared[3], strict=True))
 
 
-def test_env_numbers_refuse_a_traced_field_that_is_not_a_number():
+def test_a_program_refuses_a_traced_field_that_is_not_a_number():
     import dataclasses as dc
     from typing import ClassVar
 
-    from pimbot.envs.core import InvalidParameter
+    from pimbot.envs.core import InvalidParameter, TracedFields, program_env
 
     @dc.dataclass(frozen=True)
-    class Odd:
+    class Odd(TracedFields):
         shape: tuple = (2, 3)
         traced_fields: ClassVar[tuple[str, ...]] = ("shape",)
 
     with pytest.raises(
         InvalidParameter, match=r"Odd.traced_fields: shape must be a bool, int or float field"
     ):
-        programs.env_numbers(Odd())
+        program_env(Odd())
 
 
 def test_strategy_attacks_on_one_shared_program_give_their_own_results(tmp_path):
@@ -326,3 +328,34 @@ def test_strategy_attacks_on_one_shared_program_give_their_own_results(tmp_path)
     # the attacks did change the runs
     clean, fake = (store.read_metrics(tmp_path / "own" / n) for n in ("clean", "fake"))
     assert clean[-1]["eval/given/agent_0"] != fake[-1]["eval/given/agent_0"]
+
+
+def test_train_checks_a_run_once_and_takes_a_checked_one_as_it_is(tmp_path, monkeypatch):
+    """`runner.check` resolves the run and checks its directory once per `train`; a caller
+    that has made the checks itself (the command line, before its audit log) passes the
+    ResolvedRun with checked=True, and train makes neither again. Same metrics either way."""
+    from pimbot.training import config
+
+    calls: list[str] = []
+
+    def counted(name, fn):
+        def wrapper(*args, **kwargs):
+            calls.append(name)
+            return fn(*args, **kwargs)
+
+        return wrapper
+
+    monkeypatch.setattr(runner, "resolve", counted("resolve", config.resolve))
+    monkeypatch.setattr(runner, "check_run_dir", counted("check_run_dir", runner.check_run_dir))
+    run, cache = RunConfig(**SMALL, seeds=2), runner.ProgramCache()
+    runner.train(run, tmp_path / "a", progress=False, cache=cache)
+    assert calls == ["resolve", "check_run_dir"]
+    resolved, backends = runner.check(run, tmp_path / "b")
+    runner.train(resolved, tmp_path / "b", progress=False, log=backends, cache=cache, checked=True)
+    assert calls == ["resolve", "check_run_dir"] * 2
+    assert cache.reused == 1  # one program
+    rows = {
+        name: [{c: r[c] for c in _learning_columns(r)} for r in store.read_metrics(tmp_path / name)]
+        for name in ("a", "b")
+    }
+    assert rows["a"] == rows["b"] and len(rows["a"]) == 4

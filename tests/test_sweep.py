@@ -134,6 +134,8 @@ def test_groups_put_jobs_on_one_program_together_and_keep_dependencies_apart():
         ["a/more_seeds"],
         ["robot/x"],
     ]
+    # a property of the job kind: the robot_eval task compiles no training program
+    assert sweep.planned_programs(tasks)["training_programs"] == 5
 
 
 def test_sigkill_mid_sweep_then_rerun_completes_with_identical_results(reference, tmp_path):

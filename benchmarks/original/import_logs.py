@@ -99,7 +99,7 @@ CLAIM_SETTINGS = {
     "C3": ("bypass", ("ER(2,1)", "ER(4,3)", "ER(4,2)")),
     "C4": ("reverse", ("ER(2,1)", "ER(4,3)", "ER(4,2)")),
 }
-"""Claim -> (attack, env labels; None: every Escape Room) of spec/experiments.md's claims
+"""Claim -> (attack, env labels; None: every Escape Room) of docs/experiments.md's claims
 table that these logs can speak to (C5–C8 need ADMO, Stag Hunt, Reciprocators or a
 device profile: none of these logs). A clean run of a claim's env is its baseline."""
 

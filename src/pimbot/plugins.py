@@ -13,6 +13,13 @@ A module is a dotted module name or a path to a ``.py`` file; a file is
 imported under a stable name derived from its absolute path, so a spawned
 sweep worker that loads the same list gets the same module. `load_plugins`
 returns that list (paths made absolute) for the workers.
+
+A plugin that fails is one line naming its file and line: one that cannot be imported
+(`PluginError`), one whose registration breaks its contract (an error that says where,
+`pimbot.contracts.conformance.ContractError`, passed on as it is), and an exception raised
+in a plugin's code later (`failure_line`). Its full traceback is printed only when asked
+for (`debug_enabled`: ``PIMBOT_DEBUG=1``, or the command line's ``--debug``;
+`full_traceback`).
 """
 
 from __future__ import annotations
@@ -24,6 +31,7 @@ import importlib.util
 import os
 import re
 import sys
+import traceback
 from collections.abc import Iterable
 from pathlib import Path
 from types import ModuleType
@@ -32,6 +40,8 @@ GROUP = "pimbot.plugins"
 """The entry-point group installed packages register their plugin modules under."""
 ENV_VAR = "PIMBOT_PLUGINS"
 """Comma-separated plugin modules to load in every `pimbot` process."""
+DEBUG_VAR = "PIMBOT_DEBUG"
+"""Set to 1 for the full traceback of a plugin's failure (besides its one line)."""
 
 _LOADED: dict[str, ModuleType] = {}
 
@@ -63,9 +73,24 @@ def file_module_name(path: str) -> str:
     return f"pimbot_plugin_{stem}_{digest}"
 
 
-def _reason(error: BaseException) -> str:
+def _reason(error: BaseException, path: str | None = None) -> str:
+    """`Type: first line`, after ``FILE:LINE: `` where the plugin file `path` raised it."""
     text = str(error).strip().splitlines()
-    return f"{type(error).__name__}: {text[0]}" if text else type(error).__name__
+    reason = f"{type(error).__name__}: {text[0]}" if text else type(error).__name__
+    at = _line_in(error, [path]) if path else None
+    return f"{at}: {reason}" if at else reason
+
+
+def _line_in(error: BaseException, files: Iterable[str]) -> str | None:
+    """``FILE:LINE`` of the innermost frame of `error`'s traceback in one of `files` (a
+    syntax error: where the parser stopped), or None."""
+    wanted = {str(Path(f).resolve()) for f in files if f}
+    syntax = isinstance(error, SyntaxError) and error.filename
+    if syntax and str(Path(error.filename).resolve()) in wanted:
+        return f"{error.filename}:{error.lineno}"
+    frames = traceback.extract_tb(error.__traceback__)
+    found = [f for f in frames if str(Path(f.filename).resolve()) in wanted]
+    return f"{found[-1].filename}:{found[-1].lineno}" if found else None
 
 
 def _import_file(path: str) -> ModuleType:
@@ -99,9 +124,20 @@ def load(module: str) -> ModuleType:
     try:
         loaded = _import_file(key) if is_path(key) else importlib.import_module(key)
     except Exception as error:  # a plugin's own bug is reported in one line too
-        raise PluginError(f"plugin: cannot import {module}: {_reason(error)}") from None
+        if getattr(error, "located", False):  # one line that says where already
+            raise
+        path = key if is_path(key) else _module_file(key)
+        raise PluginError(f"plugin: cannot import {module}: {_reason(error, path)}") from error
     _LOADED[key] = loaded
     return loaded
+
+
+def _module_file(name: str) -> str | None:
+    try:
+        found = importlib.util.find_spec(name)
+    except (ImportError, ValueError):
+        return None
+    return found.origin if found is not None else None
 
 
 def _entry_points() -> Iterable[importlib.metadata.EntryPoint]:
@@ -140,3 +176,33 @@ def load_plugins(extra: Iterable[str] = (), *, from_env: bool = True) -> tuple[s
 def loaded() -> list[str]:
     """What this process has loaded (entry points, module names and file paths)."""
     return list(_LOADED)
+
+
+def loaded_files() -> list[str]:
+    """The source files of the plugins this process has loaded."""
+    files = [getattr(module, "__file__", None) for module in _LOADED.values()]
+    return [f for f in files if f]
+
+
+def failure_line(error: BaseException) -> str | None:
+    """One line for an exception raised in a loaded plugin's code (at any time: making its
+    env, its attack's parameters, tracing its hooks): ``FILE:LINE: Type: message`` at the
+    innermost frame of its traceback in a plugin file; None when none of its frames is
+    in one (pimbot's own error, reported as such)."""
+    at = _line_in(error, loaded_files())
+    if at is None:
+        return None
+    hint = f"; {DEBUG_VAR}=1 shows the traceback" if not debug_enabled() else ""
+    return f"{at}: {_reason(error)} (in plugin code{hint})"
+
+
+def debug_enabled(flag: bool = False) -> bool:
+    """Whether a failure's full traceback is wanted: `flag` (the command line's
+    ``--debug``) or ``PIMBOT_DEBUG`` set to anything but empty, 0, false or no."""
+    return flag or os.environ.get(DEBUG_VAR, "").strip().lower() not in ("", "0", "false", "no")
+
+
+def full_traceback(error: BaseException) -> str:
+    """The full traceback of `error` and of the exceptions it was raised from (a plugin's
+    one-line error keeps the original as its cause)."""
+    return "".join(traceback.format_exception(error))

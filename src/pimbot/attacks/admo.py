@@ -1,4 +1,4 @@
-"""ADMO — adaptive multi-objective manipulation (spec/attacks.md).
+"""ADMO — adaptive multi-objective manipulation (docs/attacks.md).
 
 The adversary a's parameters ω = [θ_a, η_a] are trained by ADMO instead of its
 normal update (its `adversary_step`, written once against the learner's
@@ -90,6 +90,7 @@ class ADMO(Attack):
     name: ClassVar[str] = "admo"
     lever: ClassVar[str] = "incentive + policy"
     hooks: ClassVar[tuple[str, ...]] = ("policy_sign", "adversary_step")
+    optional_hooks: ClassVar[tuple[str, ...]] = ("emit",)
     """Its incentive budget (`emit`) applies where the learner has an incentive channel."""
 
     def validate(self, num_agents: int) -> None:

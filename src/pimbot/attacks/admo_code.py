@@ -1,9 +1,9 @@
 """`admo_code` — the published PIMbot code's "ADMO": a scheduler of extra ordinary steps.
 
-The paper's ADMO (`admo`, spec/attacks.md) trains the adversary with its own loss,
+The paper's ADMO (`admo`, docs/attacks.md) trains the adversary with its own loss,
 AdamW, clipping, a reference policy and a budget. The public code behind the paper
-does something else (spec/experiments.md, "What the public code behind C5–C7 does";
-facts read from `lio/alg/train_lio_er_admo.py` of UCR-Intelligent-Robotics-Lab/
+does something else (docs/attacks.md, "`admo_code` — what the published code's "ADMO"
+does"; facts read from `lio/alg/train_lio_er_admo.py` of UCR-Intelligent-Robotics-Lab/
 greedy_agent). Once per iteration, after every agent's ordinary update:
 
 1. two scalars on the episode: the adversary's discounted returns gap

@@ -1,6 +1,6 @@
 """Strategy manipulations of one agent (the adversary): frozen pytree configs with hooks.
 
-Each overrides only the hooks of its lever (spec/attacks.md; the hook points
+Each overrides only the hooks of its lever (docs/attacks.md; the hook points
 are defined in `pimbot.contracts.attack`):
 
 * `self_centered`  — `learning_rewards`: the adversary's policy step ignores what it receives;

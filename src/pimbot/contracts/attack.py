@@ -33,8 +33,10 @@ from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
+from pimbot.contracts import conformance
 from pimbot.contracts.registry import Registry
 from pimbot.errors import InvalidParameter
 
@@ -174,6 +176,10 @@ class Attack:
     lever: ClassVar[str] = "none"
     hooks: ClassVar[tuple[str, ...]] = ()
     """The hook points this attack changes; a learner must consult all of them."""
+    optional_hooks: ClassVar[tuple[str, ...]] = ()
+    """Hook points it overrides that a learner may lack: consulted where the learner has
+    them, no reason to refuse one that has not (ADMO's budget on `emit`, which only a
+    learner with an incentive channel has). Every overridden hook is in one of the two."""
 
     def validate(self, num_agents: int) -> None:
         """Raises InvalidParameter naming the bad field (override and call super)."""
@@ -193,7 +199,13 @@ class Attack:
         """The attack as a compiled program takes it: equivalent, with any static field
         that only selects a number (a mode that is a sign) made a traced leaf, so runs
         that differ only in that choice share one program. The default: the attack
-        itself. Its hooks must give exactly the values the attack's own give."""
+        itself. Its hooks must give exactly the values the attack's own give.
+
+        Programs take attacks, defenses and envs alike, as pytree arguments whose data
+        fields are the numbers (traced) and whose class and meta fields are the structure
+        (static): a form declares its number as a data field, as an env declares its
+        numbers in `traced_fields` (`pimbot.envs.core.TracedFields`), and is built by its
+        constructor (`pimbot.attacks.signed_modes.with_traced_sign`)."""
         return self
 
     def is_adversary(self, num_agents: int) -> jax.Array:
@@ -213,7 +225,8 @@ class Attack:
     def emit(
         self, state: Any, key: jax.Array, given_so_far: jax.Array
     ) -> tuple[jax.Array, jax.Array]:
-        """(scale [N, N], offset [N, N]): emitted[i, j] = scale[i, j] · learned[i, j] + offset.
+        """(scale [N, N], offset [N, N]): emitted[i, j] = scale[i, j] · learned[i, j] + offset
+        (each may be [N, 1] instead: giver i's value for every recipient).
 
         Args:
             given_so_far: [N, N] incentives emitted earlier in this episode.
@@ -272,10 +285,107 @@ ATTACKS: Registry[type[Attack]] = Registry("attack", "attack")
 
 
 def register(cls: type[Attack], *, replace: bool = False) -> type[Attack]:
-    """Registers an attack class under `cls.name` (usable as a class decorator)."""
-    return ATTACKS.register_hooked_class(cls, Attack, HOOKS, replace=replace)
+    """Registers an attack class under `cls.name` (usable as a class decorator).
+
+    Its code is checked against what it declares (`conformance.check_hooked_class`), and
+    the hooks it overrides are replaced by checked ones (`conformance.install_checks`:
+    while a program is traced, each output is checked against the contract below, and an
+    exception inside the attack's code is one line at its file and line).
+
+    Raises:
+        ContractError: one line naming the class's file and line.
+    """
+    registered = ATTACKS.register_hooked_class(cls, Attack, HOOKS, replace=replace)
+    conformance.install_checks(cls, Attack, OUTPUT_CHECKS)
+    return registered
 
 
 def parameters(cls: type[Attack]) -> dict[str, Any]:
     """The attack's parameters and their defaults."""
     return {f.name: f.default for f in dataclasses.fields(cls) if f.init}
+
+
+# --- each hook's output, as the rollout and the learners take it (checked at trace time) ---
+
+
+def _act_problem(attack: Attack, out, args) -> str | None:
+    actions = args["actions"]
+    return conformance.array_problem(out, [jnp.shape(actions)], dtype=conformance.aval(actions)[1])
+
+
+def _emit_problem(attack: Attack, out, args) -> str | None:
+    n = jnp.shape(args["given_so_far"])[0]
+    if not (isinstance(out, tuple | list) and len(out) == 2):
+        return f"a {type(out).__name__}; expected (scale [{n}, {n}], offset [{n}, {n}])"
+    for part, value in zip(("scale", "offset"), out, strict=True):
+        problem = conformance.array_problem(value, [(n, n), (n, 1)])
+        if problem:
+            return f"{part} {problem} (givers × recipients)"
+    return None
+
+
+def _learning_rewards_problem(attack: Attack, out, args) -> str | None:
+    shape = np.broadcast_shapes(jnp.shape(args["env_rewards"]), jnp.shape(args["received"]))
+    return conformance.array_problem(out, [shape])
+
+
+def _policy_sign_problem(attack: Attack, out, args) -> str | None:
+    return conformance.array_problem(out, [(args["num_agents"],)], kinds="fi")
+
+
+def _observe_problem(attack: Attack, out, args) -> str | None:
+    return conformance.like_problem(out, args["state"], "a state")
+
+
+def _row(stacked):
+    """The shapes of one agent's row of stacked parameters (no array is made)."""
+    return jax.tree.map(lambda x: jax.ShapeDtypeStruct(jnp.shape(x)[1:], x.dtype), stacked)
+
+
+def _adversary_step_problem(attack: Attack, out, args) -> str | None:
+    if not (isinstance(out, tuple | list) and len(out) == 3):
+        return f"a {type(out).__name__}; expected (AgentParams, state, metrics)"
+    own, state, metrics = out
+    if not isinstance(own, AgentParams):
+        return f"{type(own).__name__} first; expected AgentParams(policy, incentive)"
+    view = args["view"]
+    n = jnp.shape(view.env_rewards)[-1]
+    return (
+        conformance.like_problem(own.policy, _row(view.policy), "policy")
+        or (
+            conformance.like_problem(own.incentive, _row(view.incentive), "incentive")
+            if view.incentive is not None
+            else None
+        )
+        or conformance.like_problem(state, args["state"], "a state")
+        or conformance.metrics_problem(metrics, n)
+    )
+
+
+def _update_schedule_problem(attack: Attack, out, args) -> str | None:
+    if not isinstance(out, UpdateSchedule):
+        return f"a {type(out).__name__}; expected an UpdateSchedule"
+    n = jnp.shape(args["view"].env_rewards)[-1]
+    if isinstance(out.most_epochs, bool) or not isinstance(out.most_epochs, int):
+        return f"most_epochs {out.most_epochs!r}; expected a Python int (a static bound)"
+    problem = conformance.array_problem(out.epochs, [(n,)], kinds="iu")
+    if problem:
+        return f"epochs {problem}"
+    problem = conformance.array_problem(out.reward_weight_scale, [(n,)])
+    if problem:
+        return f"reward_weight_scale {problem}"
+    return conformance.metrics_problem(out.metrics, n)
+
+
+OUTPUT_CHECKS: dict[str, conformance.OutputCheck | None] = {
+    "act": _act_problem,
+    "emit": _emit_problem,
+    "learning_rewards": _learning_rewards_problem,
+    "policy_sign": _policy_sign_problem,
+    "adversary_step": _adversary_step_problem,
+    "observe": _observe_problem,
+    "update_schedule": _update_schedule_problem,
+    "init_state": None,  # any pytree: an exception inside it is still one line
+    "validate": None,
+}
+"""Every hook's output check (`conformance.install_checks`), by the contract above."""

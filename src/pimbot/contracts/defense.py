@@ -23,6 +23,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from pimbot.contracts import conformance
 from pimbot.contracts.registry import Registry
 
 HOOKS = ("acting_epsilon", "learning_incentives", "after_policy_step")
@@ -101,8 +102,19 @@ DEFENSES: Registry[type[Defense]] = Registry("defense", "defenses")
 
 
 def register(cls: type[Defense], *, replace: bool = False) -> type[Defense]:
-    """Registers a defense class under `cls.name` (usable as a class decorator)."""
-    return DEFENSES.register_hooked_class(cls, Defense, HOOKS, replace=replace)
+    """Registers a defense class under `cls.name` (usable as a class decorator).
+
+    Its code is checked against what it declares (`conformance.check_hooked_class`), and
+    the hooks it overrides are replaced by checked ones (`conformance.install_checks`: each
+    output checked against the contract below while a program is traced; an exception
+    inside the defense's code is one line at its file and line).
+
+    Raises:
+        ContractError: one line naming the class's file and line.
+    """
+    registered = DEFENSES.register_hooked_class(cls, Defense, HOOKS, replace=replace)
+    conformance.install_checks(cls, Defense, OUTPUT_CHECKS)
+    return registered
 
 
 def honest_agents(attack, num_agents: int) -> jax.Array:
@@ -145,3 +157,45 @@ def after_policy_step(defenses: Defenses, states: tuple, ctx: PolicyStepContext)
         new_states.append(state)
         metrics.update(step_metrics)
     return policy, tuple(new_states), metrics
+
+
+# --- each hook's output, as the learners take it (checked at trace time) ------------------
+
+
+def _acting_epsilon_problem(defense: Defense, out, args) -> str | None:
+    n = jnp.shape(args["ctx"].honest)[0]
+    return conformance.array_problem(out, [(), (n,)])
+
+
+def _folded_problem(out, args, first: str, expected, shape_words: str) -> str | None:
+    """Why `out` is not (`first` like `expected`, the state as it came in, metrics)."""
+    if not (isinstance(out, tuple | list) and len(out) == 3):
+        return f"a {type(out).__name__}; expected ({first}, state, metrics)"
+    value, state, metrics = out
+    problem = conformance.like_problem(value, expected, first)
+    if problem:
+        return f"{problem} ({shape_words})"
+    n = jnp.shape(args["ctx"].honest)[0]
+    return conformance.like_problem(state, args["state"], "a state") or (
+        conformance.metrics_problem(metrics, n)
+    )
+
+
+def _learning_incentives_problem(defense: Defense, out, args) -> str | None:
+    accepted = args["ctx"].accepted
+    return _folded_problem(out, args, "accepted", accepted, "[T, N giver, N recipient]")
+
+
+def _after_policy_step_problem(defense: Defense, out, args) -> str | None:
+    policy = args["ctx"].policy
+    return _folded_problem(out, args, "policy", policy, "the stacked policy, as ctx.policy")
+
+
+OUTPUT_CHECKS: dict[str, conformance.OutputCheck | None] = {
+    "acting_epsilon": _acting_epsilon_problem,
+    "learning_incentives": _learning_incentives_problem,
+    "after_policy_step": _after_policy_step_problem,
+    "init_state": None,  # any pytree: an exception inside it is still one line
+    "validate": None,
+}
+"""Every hook's output check (`conformance.install_checks`), by the contract above."""

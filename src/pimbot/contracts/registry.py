@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Generic, TypeVar
 
+from pimbot.contracts import conformance
 from pimbot.errors import InvalidParameter
 
 T = TypeVar("T")
@@ -27,17 +28,22 @@ class Registry(Generic[T]):
         return entry
 
     def register_hooked_class(self, cls, base: type, hooks: tuple[str, ...], *, replace=False):
-        """Registers a class of hook points under `cls.name`: it must subclass `base` and
-        list only hook points among `hooks` in its `hooks`."""
+        """Registers a class of hook points under `cls.name`: it must subclass `base`, and
+        its code must match what it declares (`conformance.check_hooked_class`: the hook
+        points it lists among `hooks` and overrides, `optional_hooks` where it has them,
+        its static fields).
+
+        Raises:
+            ContractError: one line naming the class's file and line.
+        """
         if not (isinstance(cls, type) and issubclass(cls, base)):
-            raise TypeError(
-                f"{self.kind}s must subclass {base.__module__}.{base.__qualname__}, got {cls!r}"
+            where = conformance.location(cls) if isinstance(cls, type) else repr(cls)
+            raise conformance.ContractError(
+                f"{where}: {self.kind}s must subclass {base.__module__}.{base.__qualname__}, "
+                f"got {cls!r}"
             )
-        unknown = set(cls.hooks) - set(hooks)
-        if unknown:
-            raise ValueError(
-                f"{self.kind} {cls.name}: unknown hooks {sorted(unknown)}; known: {hooks}"
-            )
+        optional = tuple(getattr(cls, "optional_hooks", ()))
+        conformance.check_hooked_class(cls, base, hooks, self.kind, optional)
         return self.register(cls.name, cls, replace=replace)
 
     def get(self, name: str) -> T:

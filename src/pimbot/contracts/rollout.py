@@ -165,7 +165,7 @@ def received(incentives: jax.Array) -> jax.Array:
 
 
 def episode_metrics(env: Env, traj: Trajectory) -> dict[str, jax.Array]:
-    """Per-episode metrics (see spec/experiments.md), then the episode sums of the
+    """Per-episode metrics (see docs/experiments.md), then the episode sums of the
     env's declared per-step metrics (`Env.step_metrics`) under their own names."""
     env_return = traj.env_rewards.sum(axis=0)  # [N]
     got = received(traj.incentives).sum(axis=0)  # [N]

@@ -1,4 +1,4 @@
-"""Defenses against manipulation of incentive-based MARL (spec/defenses.md), by name.
+"""Defenses against manipulation of incentive-based MARL (docs/defenses.md), by name.
 
 Training-time defenses, folded over at the hook points of
 `pimbot.contracts.defense` in the order given: `incentive_guard`,

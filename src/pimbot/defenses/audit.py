@@ -315,6 +315,14 @@ def verify(
     """
     path = Path(path)
     kid = key_id(key)
+    chain = _check_chain(_log_lines(path, data), key, kid)
+    if isinstance(chain, VerifyResult):
+        return chain
+    return _check_end(path, key, kid, chain, head)
+
+
+def _log_lines(path: Path, data: bytes | None) -> list[bytes]:
+    """The log's lines (`data`'s, or the file's), without the final newline's empty one."""
     try:
         data = path.read_bytes() if data is None else data
     except OSError as error:
@@ -322,40 +330,68 @@ def verify(
     lines = data.split(b"\n")
     if lines[-1] == b"":
         lines.pop()
-    prev, count, macs = "", 0, []
+    return lines
+
+
+def _check_chain(lines: list[bytes], key: bytes, kid: str) -> list[str] | VerifyResult:
+    """The records' MACs in order, each record checked (well-formed, its MAC, written as
+    the writer writes it, its index and its link to the previous one); or the first bad
+    record's result."""
+    prev, macs = "", []
     for number, raw in enumerate(lines, start=1):
-
-        def bad(reason: str, number: int = number, count: int = count, prev: str = prev):
-            return VerifyResult(False, count, prev, number, reason)
-
-        try:
-            record = json.loads(raw.decode("utf-8"))
-        except UnicodeDecodeError:
-            return bad("not UTF-8 text (a binary file?)")
-        except (ValueError, RecursionError):
-            return bad(
-                "not valid JSON" + (" (a partial last line)" if number == len(lines) else "")
-            )
-        problem = _check_record(record, kid)
+        record, problem = _parse_line(raw, last=number == len(lines))
+        problem = (
+            problem
+            or _check_record(record, kid)
+            or _check_mac(record, raw, key)
+            or _check_link(record, len(macs), prev)
+        )
         if problem:
-            return bad(problem)
-        body = {k: v for k, v in record.items() if k != "mac"}
-        try:
-            expected = record_mac(key, body)
-        except (ValueError, RecursionError):
-            return bad("data cannot be encoded canonically")
-        if not hmac.compare_digest(expected, record["mac"]):
-            return bad("MAC does not match the record (edited, or forged without the key)")
-        if raw != json.dumps(record, sort_keys=True).encode():
-            return bad("not written as the writer writes it (bytes edited: spacing, escapes)")
-        if record["index"] != count:
-            return bad(f"index {record['index']}, expected {count} (deleted, inserted or moved)")
-        if count and record["prev"] != prev:
-            return bad("prev does not match the previous record's MAC (chain broken)")
-        prev, count = record["mac"], count + 1
+            return VerifyResult(False, len(macs), prev, number, problem)
+        prev = record["mac"]
         macs.append(prev)
-    if count == 0:
+    if not macs:
         return VerifyResult(False, 0, prev, 1, "the log is empty (no records)")
+    return macs
+
+
+def _parse_line(raw: bytes, last: bool) -> tuple[Any, str]:
+    """(the line's JSON value, "") or (None, why it is not JSON)."""
+    try:
+        return json.loads(raw.decode("utf-8")), ""
+    except UnicodeDecodeError:
+        return None, "not UTF-8 text (a binary file?)"
+    except (ValueError, RecursionError):
+        return None, "not valid JSON" + (" (a partial last line)" if last else "")
+
+
+def _check_mac(record: dict, raw: bytes, key: bytes) -> str:
+    """Why a well-formed record's MAC or bytes are not the writer's ("" when they are)."""
+    body = {k: v for k, v in record.items() if k != "mac"}
+    try:
+        expected = record_mac(key, body)
+    except (ValueError, RecursionError):
+        return "data cannot be encoded canonically"
+    if not hmac.compare_digest(expected, record["mac"]):
+        return "MAC does not match the record (edited, or forged without the key)"
+    if raw != json.dumps(record, sort_keys=True).encode():
+        return "not written as the writer writes it (bytes edited: spacing, escapes)"
+    return ""
+
+
+def _check_link(record: dict, count: int, prev: str) -> str:
+    """Why a record is not the chain's next after `count` records ending in MAC `prev`."""
+    if record["index"] != count:
+        return f"index {record['index']}, expected {count} (deleted, inserted or moved)"
+    if count and record["prev"] != prev:
+        return "prev does not match the previous record's MAC (chain broken)"
+    return ""
+
+
+def _check_end(path: Path, key: bytes, kid: str, macs: list[str], head: str | None):
+    """The result of a log whose records all verify (MACs `macs`): whether it ends where
+    it should (it contains `head`, if given; its signed head file agrees)."""
+    count, prev = len(macs), macs[-1]
     notes = []
     if head is not None:
         if head not in macs:

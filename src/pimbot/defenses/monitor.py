@@ -173,8 +173,35 @@ def step(
     Returns:
         (policy, with fallen-back recipients reset to their checkpoint; new state; metrics).
     """
-    n = incentives.shape[1]
-    rate = monitor.stats_rate
+    episode = (incentives, valid, team_return, env_rewards)
+    stats = _statistics(monitor.stats_rate, state, iteration, episode, gradients_fn, incentive_max)
+    flags = _flags(monitor, stats, honest, incentive_max)
+    streak, cooldown, alarm, fallback = _alarms(monitor, state, flags["flagged"], iteration)
+
+    policy = _select(fallback, state["checkpoint"], policy)
+    healthy = honest & ~flags["flagged"].any(axis=0) & ~fallback & ~flags["declining"]
+    take = healthy & ((iteration + 1) % monitor.checkpoint_period == 0)
+    checkpoint = _select(take, policy, state["checkpoint"])
+
+    any_alarm = alarm.any()
+    new_state = {
+        **stats,
+        "streak": streak,
+        "cooldown": cooldown,
+        "alarms": state["alarms"] + alarm,
+        "first_alarm": jnp.where(
+            (state["first_alarm"] < 0) & any_alarm, iteration, state["first_alarm"]
+        ),
+        "checkpoint": checkpoint,
+    }
+    return policy, new_state, _metrics(alarm, fallback, flags, stats["conflict"])
+
+
+def _statistics(rate, state, iteration, episode, gradients_fn, incentive_max) -> dict:
+    """The health statistics' EMAs (rate `rate`; the welfare's at `FAST_RATE` and
+    `SLOW_RATE`) updated with `episode` = (incentives, valid, team return, env rewards);
+    the first iteration starts them at its values."""
+    incentives, valid, team_return, env_rewards = episode
     steps = jnp.maximum(valid.sum(), 1).astype(jnp.float32)
     mask = valid.astype(jnp.float32)[:, None, None]
     mean_sent = (incentives * mask).sum(axis=0) / steps  # [giver, recipient]
@@ -189,59 +216,67 @@ def step(
     out_of_range = ema(state["out_of_range"], outside.astype(jnp.float32), rate)
     sources = jnp.concatenate([env_rewards[None], jnp.moveaxis(incentives, 1, 0)], axis=0)
     cosines = conflict_cosines(gradients_fn(sources))
-    conflict = ema(state["conflict"], cosines, rate)
-
-    trend = welfare_fast - welfare_slow
-    declining = trend < -monitor.welfare_drop * jnp.maximum(jnp.abs(welfare_slow), 1.0)
-    std = jnp.sqrt(jnp.maximum(incentive_square - incentive_mean**2, 0.0))
-    pair = honest[None, :] & ~jnp.eye(n, dtype=bool)
-    flag_range = out_of_range > 0.5
-    flag_variance = std > monitor.variance_threshold * incentive_max
-    flag_conflict = (conflict < -monitor.conflict_threshold) & declining
-    flagged = pair & (flag_range | flag_variance | flag_conflict)
-
-    streak = jnp.where(flagged, state["streak"] + 1, 0)
-    cooling = state["cooldown"] > 0
-    alarm = (streak >= monitor.patience) & ~cooling & (iteration >= monitor.warmup)
-    streak = jnp.where(alarm, 0, streak)
-    cooldown = jnp.where(alarm, monitor.cooldown, jnp.maximum(state["cooldown"] - 1, 0))
-    fallback = alarm.any(axis=0)  # [recipient]
-
-    policy = _select(fallback, state["checkpoint"], policy)
-    healthy = honest & ~flagged.any(axis=0) & ~fallback & ~declining
-    take = healthy & ((iteration + 1) % monitor.checkpoint_period == 0)
-    checkpoint = _select(take, policy, state["checkpoint"])
-
-    any_alarm = alarm.any()
-    new_state = {
+    return {
         "welfare_fast": welfare_fast,
         "welfare_slow": welfare_slow,
         "incentive_mean": incentive_mean,
         "incentive_square": incentive_square,
         "out_of_range": out_of_range,
-        "conflict": conflict,
-        "streak": streak,
-        "cooldown": cooldown,
-        "alarms": state["alarms"] + alarm,
-        "first_alarm": jnp.where(
-            (state["first_alarm"] < 0) & any_alarm, iteration, state["first_alarm"]
-        ),
-        "checkpoint": checkpoint,
+        "conflict": ema(state["conflict"], cosines, rate),
     }
+
+
+def _flags(monitor: HealthMonitor, stats: dict, honest: jax.Array, incentive_max) -> dict:
+    """The welfare trend, whether it declines, the honest pairs [giver, recipient] and
+    which of them each rule flags ("range", "variance", "conflict"; any: "flagged")."""
+    n = honest.shape[0]
+    trend = stats["welfare_fast"] - stats["welfare_slow"]
+    slow = stats["welfare_slow"]
+    declining = trend < -monitor.welfare_drop * jnp.maximum(jnp.abs(slow), 1.0)
+    variance = jnp.maximum(stats["incentive_square"] - stats["incentive_mean"] ** 2, 0.0)
+    std = jnp.sqrt(variance)
+    pair = honest[None, :] & ~jnp.eye(n, dtype=bool)
+    flag_range = stats["out_of_range"] > 0.5
+    flag_variance = std > monitor.variance_threshold * incentive_max
+    flag_conflict = (stats["conflict"] < -monitor.conflict_threshold) & declining
+    return {
+        "trend": trend,
+        "declining": declining,
+        "pair": pair,
+        "range": flag_range,
+        "variance": flag_variance,
+        "conflict": flag_conflict,
+        "flagged": pair & (flag_range | flag_variance | flag_conflict),
+    }
+
+
+def _alarms(monitor: HealthMonitor, state: dict, flagged: jax.Array, iteration: jax.Array):
+    """(streaks, cool-downs, alarms [giver, recipient], recipients falling back [N]): a
+    pair flagged `patience` times in a row after `warmup`, not cooling down, raises an
+    alarm, which restarts its streak and starts its cool-down."""
+    streak = jnp.where(flagged, state["streak"] + 1, 0)
+    cooling = state["cooldown"] > 0
+    alarm = (streak >= monitor.patience) & ~cooling & (iteration >= monitor.warmup)
+    streak = jnp.where(alarm, 0, streak)
+    cooldown = jnp.where(alarm, monitor.cooldown, jnp.maximum(state["cooldown"] - 1, 0))
+    return streak, cooldown, alarm, alarm.any(axis=0)
+
+
+def _metrics(alarm, fallback, flags: dict, conflict) -> dict[str, jax.Array]:
+    """The step's `defense/monitor_*` metrics (key order: metrics.csv's column order)."""
     count = lambda x: jnp.sum(x & alarm).astype(jnp.float32)  # noqa: E731
-    honest_pairs = jnp.maximum(pair.sum(), 1)
-    metrics = {
+    honest_pairs = jnp.maximum(flags["pair"].sum(), 1)
+    return {
         "defense/monitor_alarms": alarm.sum().astype(jnp.float32),
         "defense/monitor_alarms_by_giver": alarm.sum(axis=1).astype(jnp.float32),  # [N]
-        "defense/monitor_alarms_range": count(flag_range),
-        "defense/monitor_alarms_variance": count(flag_variance),
-        "defense/monitor_alarms_conflict": count(flag_conflict),
+        "defense/monitor_alarms_range": count(flags["range"]),
+        "defense/monitor_alarms_variance": count(flags["variance"]),
+        "defense/monitor_alarms_conflict": count(flags["conflict"]),
         "defense/monitor_fallbacks": fallback.sum().astype(jnp.float32),
-        "defense/monitor_flagged_pairs": flagged.sum().astype(jnp.float32),
-        "defense/monitor_conflict": jnp.sum(conflict * pair) / honest_pairs,
-        "defense/monitor_welfare_trend": trend,
+        "defense/monitor_flagged_pairs": flags["flagged"].sum().astype(jnp.float32),
+        "defense/monitor_conflict": jnp.sum(conflict * flags["pair"]) / honest_pairs,
+        "defense/monitor_welfare_trend": flags["trend"],
     }
-    return policy, new_state, metrics
 
 
 def _select(mask: jax.Array, new, old):

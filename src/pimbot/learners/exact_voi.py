@@ -1,7 +1,7 @@
 """Exact value of influence on matrix games (the original Reciprocator's IPD agent).
 
 In a matrix game every reward is a known function of the joint action, so the
-value of influence needs no learned models (spec/reciprocators.md; the
+value of influence needs no learned models (docs/reciprocators.md; the
 original's `MatrixVOI`):
 
     VoI(j → i, t) = r_i(a_t) − Σ_{a'} p̂_j(a' | s_t) · r_i(a', a_{−j, t}),

@@ -1,6 +1,6 @@
 """Value of influence, the influence balance and the reciprocal reward (Reciprocator).
 
-Learned models (spec/reciprocators.md), all MLPs in → 64 → 64 → N:
+Learned models (docs/reciprocators.md), all MLPs in → 64 → 64 → N:
   * a joint reward model r̂(s, a) and a joint future-value model q̂(s, a)
     (target: the discounted env return after t, G_{t+1});
   * per agent j, counterfactual reward and future-value models r̂^{−j}, q̂^{−j}

@@ -3,7 +3,7 @@
 `pimbot profile` runs the batch-size-1 decision loop with LIO's policy and
 incentive heads (benign, or with ADMO on agent 0), samples CPU/GPU/thermal/
 power sensors in a background thread and writes a run directory
-(spec/profiling.md).
+(docs/profiling.md).
 """
 
 from pimbot.profiling.decision_loop import CONTROLLERS, ProfileConfig

@@ -1,7 +1,7 @@
 """LIO's training cadence: how many decisions its training takes per update.
 
 One LIO update is one iteration, and an iteration plays its own episodes (τ with
-θ, then τ̂ with θ̂: spec/lio.md). Each episode is up to `env.max_steps` joint
+θ, then τ̂ with θ̂: docs/lio.md). Each episode is up to `env.max_steps` joint
 decisions, one per environment step (training repeats no action), and the
 training's rollout computes all of them (a scan over the horizon, the steps
 after the end masked). So the training cadence is

@@ -101,35 +101,13 @@ def go_to_goal(
     slow = np.ones(len(poses))
     backing = np.zeros(len(poses), bool)
     for i in np.flatnonzero(moving):
-        others = np.flatnonzero(np.arange(len(poses)) != i)
-        rel = poses[others, :2] - poses[i, :2]
-        gap = np.linalg.norm(rel, axis=1)
-        # Robots beyond this one's goal are no obstacle on the way there.
-        near = (gap < cfg.avoid_range) & (gap < distance[i] + 0.25)
-        if not near.any():
+        flip = detour is not None and bool(detour[i])
+        avoided = _avoidance(i, poses, distance[i], direction[i], moving, cfg, flip)
+        if avoided is None:
             continue
-        others, rel, gap = others[near], rel[near], gap[near]
-        bearing = wrap_angle(np.arctan2(rel[:, 1], rel[:, 0]) - poses[i, 2])
-        weight = np.clip((cfg.avoid_range - gap) / (cfg.avoid_range - 0.22), 0.0, 1.0)
-        # How much each robot lies on the way to the goal (not on the current heading,
-        # so that the field around a parked robot does not turn with this robot).
-        ahead = np.maximum((rel / gap[:, None]) @ direction[i], 0.0)
-        away = -rel / gap[:, None]
-        # Around a parked robot on the goal's side (its left side on a tie); past a
-        # driving one on the right.
-        around = np.stack([-away[:, 1], away[:, 0]], axis=1)
-        side = np.where(around @ direction[i] >= -0.2, 1.0, -1.0)
-        if detour is not None and detour[i]:
-            side = -side
-        around *= side[:, None]
-        keep_right = np.array([direction[i, 1], -direction[i, 0]])
-        tangent = np.where(moving[others][:, None], keep_right, around)
-        push = weight[:, None] * (np.where(moving[others], 1.0, 0.5)[:, None] * away)
-        push += (weight * ahead)[:, None] * tangent
-        field[i] += cfg.avoid_gain * push.sum(axis=0)
-        blocking = np.abs(bearing) < cfg.avoid_cone
-        if blocking.any():
-            closest = gap[blocking].min()
+        push, closest = avoided
+        field[i] += cfg.avoid_gain * push
+        if closest is not None:
             slow[i] = np.clip((closest - 0.23) / 0.15, 0.0, 1.0)
             backing[i] = closest < cfg.back_off_gap
     heading = np.arctan2(field[:, 1], field[:, 0])
@@ -140,6 +118,39 @@ def go_to_goal(
     # Wedged against a robot ahead: reverse slowly while turning away.
     linear = np.where(backing, -cfg.back_off_speed, linear)
     return np.where(moving, linear, 0.0), np.where(moving, angular, 0.0), arrived
+
+
+def _avoidance(i, poses, distance, direction, moving, cfg: ControllerConfig, flip: bool):
+    """(The push [2] on moving robot `i`'s desired heading from the robots near it, the
+    centre distance to the closest one in its cone ahead or None), or None when no robot
+    is near. `distance`, `direction`: to its goal; `flip`: it detours (`go_to_goal`)."""
+    others = np.flatnonzero(np.arange(len(poses)) != i)
+    rel = poses[others, :2] - poses[i, :2]
+    gap = np.linalg.norm(rel, axis=1)
+    # Robots beyond this one's goal are no obstacle on the way there.
+    near = (gap < cfg.avoid_range) & (gap < distance + 0.25)
+    if not near.any():
+        return None
+    others, rel, gap = others[near], rel[near], gap[near]
+    bearing = wrap_angle(np.arctan2(rel[:, 1], rel[:, 0]) - poses[i, 2])
+    weight = np.clip((cfg.avoid_range - gap) / (cfg.avoid_range - 0.22), 0.0, 1.0)
+    # How much each robot lies on the way to the goal (not on the current heading,
+    # so that the field around a parked robot does not turn with this robot).
+    ahead = np.maximum((rel / gap[:, None]) @ direction, 0.0)
+    away = -rel / gap[:, None]
+    # Around a parked robot on the goal's side (its left side on a tie); past a
+    # driving one on the right.
+    around = np.stack([-away[:, 1], away[:, 0]], axis=1)
+    side = np.where(around @ direction >= -0.2, 1.0, -1.0)
+    if flip:
+        side = -side
+    around *= side[:, None]
+    keep_right = np.array([direction[1], -direction[0]])
+    tangent = np.where(moving[others][:, None], keep_right, around)
+    push = weight[:, None] * (np.where(moving[others], 1.0, 0.5)[:, None] * away)
+    push += (weight * ahead)[:, None] * tangent
+    blocking = np.abs(bearing) < cfg.avoid_cone
+    return push.sum(axis=0), (gap[blocking].min() if blocking.any() else None)
 
 
 @dataclasses.dataclass

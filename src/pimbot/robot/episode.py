@@ -233,19 +233,7 @@ def run_episode(
             [layout.slot(chosen[i], i) if driving[i] else (0.0, 0.0) for i in range(n)]
         )
         started = world.data.time
-        active = driving.copy()
-        arrived = np.zeros(n, bool)
-        progress.reset(started)
-        while active.any() and world.data.time - started < cfg.decision_time_limit:
-            odometry = sim.odometry_poses()
-            distance = np.linalg.norm(goals - odometry[:, :2], axis=1)
-            detour = progress.update(world.data.time, distance)
-            linear, angular, reached = ctl.go_to_goal(
-                odometry, goals, active, cfg.controller, detour
-            )
-            arrived |= reached & active
-            active &= ~reached
-            sim.tick(linear, angular)
+        arrived = drive(sim, goals, driving, progress)
         for _ in range(settle_ticks):
             sim.tick(np.zeros(n), np.zeros(n))
         zones = sim.zones()
@@ -273,6 +261,26 @@ def run_episode(
         bus=sim.bus,
         trace={k: np.array(v) for k, v in sim.trace.items()},
     )
+
+
+def drive(sim: Simulation, goals: np.ndarray, driving: np.ndarray, progress) -> np.ndarray:
+    """Drives the robots of `driving` to their `goals` (`ctl.go_to_goal` on odometry, one
+    control period a tick) until all have arrived or the decision's time is up; returns
+    which arrived (bool [N]). `progress`: the decision's `ctl.Progress`, restarted here."""
+    world, cfg = sim.world, sim.cfg
+    started = world.data.time
+    active = driving.copy()
+    arrived = np.zeros(len(driving), bool)
+    progress.reset(started)
+    while active.any() and world.data.time - started < cfg.decision_time_limit:
+        odometry = sim.odometry_poses()
+        distance = np.linalg.norm(goals - odometry[:, :2], axis=1)
+        detour = progress.update(world.data.time, distance)
+        linear, angular, reached = ctl.go_to_goal(odometry, goals, active, cfg.controller, detour)
+        arrived |= reached & active
+        active &= ~reached
+        sim.tick(linear, angular)
+    return arrived
 
 
 @dataclasses.dataclass

@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from pimbot import envs
 from pimbot.contracts.rollout import decide
 from pimbot.errors import InvalidParameter, check_int
 from pimbot.robot.episode import EpisodeResult, PhysicsConfig, run_episode
@@ -33,10 +34,11 @@ from pimbot.training.runs import LoadedRun
 def load_run(run_dir: str | Path) -> LoadedRun:
     """Restores an Escape Room run for the robots; fails naming what is unsupported."""
     loaded = runs.load_run(run_dir)
-    if loaded.resolved.run.env_id != "escape_room-v0":
+    room_ids = envs.ids_of(envs.EscapeRoom)  # the rules the robots play
+    if loaded.resolved.run.env_id not in room_ids:
         raise InvalidParameter(
             f"run_dir: {run_dir} trained on {loaded.resolved.run.env_id}; the robot case study "
-            "plays escape_room-v0 runs only"
+            f"plays {', '.join(room_ids)} runs only"
         )
     return loaded
 

@@ -243,98 +243,127 @@ def matplotlib_frames(
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.patches as patches
     import matplotlib.pyplot as plt
-    from matplotlib.lines import Line2D
 
-    layout = result.world.layout
-    w, h = layout.width, layout.height
     dpi = 100
     fig = plt.figure(figsize=(size[0] / dpi, size[1] / dpi), dpi=dpi)
     ax = fig.add_axes((0.02, 0.16, 0.96, 0.74))
+    handles = _legend_handles(result.world.num_robots, adversary)
+    fig.legend(handles=handles, loc="lower center", ncol=3, fontsize=7, frameon=False)
+    frames = []
+    for k in indices:
+        ax.clear()
+        _draw_room(ax, result.world.layout)
+        line, is_open = status(result, k)
+        _draw_door(ax, result.world.layout, result.trace["gate"][k], is_open)
+        _draw_robots(ax, result, k, adversary)
+        _draw_headline(fig, title, line, OPEN_COLOUR if is_open else CLOSED_COLOUR)
+        fig.canvas.draw()
+        frames.append(np.asarray(fig.canvas.buffer_rgba())[..., :3].copy())
+    plt.close(fig)
+    return frames
+
+
+def _legend_handles(num_robots: int, adversary: int | None) -> list:
+    """The legend of every matplotlib frame: each zone's role, the gate, each robot."""
+    import matplotlib.patches as patches
+    from matplotlib.lines import Line2D
+
     handles = [
         patches.Patch(color=colour, label=ZONE_ROLES.get(name, name))
         for name, colour in zip(ZONE_NAMES, ZONE_COLOURS, strict=True)
     ]
     handles.append(patches.Patch(color="#8c4d26", label="gate (slides open)"))
-    for i in range(result.world.num_robots):
+    for i in range(num_robots):
         label = f"robot {i}" + (" (adversary)" if i == adversary else "")
         handles.append(
             Line2D([], [], ls="", marker="o", ms=8, mfc=robot_colour(i, adversary),
                    mec="black" if i == adversary else "none", mew=2, label=label)
         )  # fmt: skip
-    fig.legend(handles=handles, loc="lower center", ncol=3, fontsize=7, frameon=False)
-    frames = []
-    for k in indices:
-        ax.clear()
-        ax.set_xlim(-w / 2 - 0.2, w / 2 + 0.2)
-        ax.set_ylim(-h / 2 - 0.2, h / 2 + 0.2)
-        ax.set_aspect("equal")
-        ax.set_xticks([])
-        ax.set_yticks([])
-        ax.add_patch(patches.Rectangle((-w / 2, -h / 2), w, h, fill=False, lw=3, ec="#8c8270"))
-        for name, (cx, cy), colour in zip(
-            ZONE_NAMES, layout.zone_centres, ZONE_COLOURS, strict=True
-        ):
-            half = layout.zone_half
-            ax.add_patch(
-                patches.Rectangle((cx - half, cy - half), 2 * half, 2 * half, color=colour)
-            )
-            ax.text(cx, cy + half + 0.05, name, ha="center", fontsize=9)
-        line, is_open = status(result, k)
-        state = OPEN_COLOUR if is_open else CLOSED_COLOUR
-        # The doorway, and the gate slid along the wall by its current opening.
-        ax.plot(
-            [w / 2, w / 2],
-            [layout.door_y - DOOR_GAP / 2, layout.door_y + DOOR_GAP / 2],
-            color="white",
-            lw=4,
+    return handles
+
+
+def _draw_room(ax, layout) -> None:
+    """The room's walls and its zones with their names, on a cleared axes."""
+    import matplotlib.patches as patches
+
+    w, h = layout.width, layout.height
+    ax.set_xlim(-w / 2 - 0.2, w / 2 + 0.2)
+    ax.set_ylim(-h / 2 - 0.2, h / 2 + 0.2)
+    ax.set_aspect("equal")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    ax.add_patch(patches.Rectangle((-w / 2, -h / 2), w, h, fill=False, lw=3, ec="#8c8270"))
+    for name, (cx, cy), colour in zip(ZONE_NAMES, layout.zone_centres, ZONE_COLOURS, strict=True):
+        half = layout.zone_half
+        ax.add_patch(patches.Rectangle((cx - half, cy - half), 2 * half, 2 * half, color=colour))
+        ax.text(cx, cy + half + 0.05, name, ha="center", fontsize=9)
+
+
+def _draw_door(ax, layout, opening, is_open: bool) -> None:
+    """The doorway, the gate slid along the wall by its `opening` (a fraction), and the
+    door's state."""
+    import matplotlib.patches as patches
+
+    w = layout.width
+    ax.plot(
+        [w / 2, w / 2],
+        [layout.door_y - DOOR_GAP / 2, layout.door_y + DOOR_GAP / 2],
+        color="white",
+        lw=4,
+    )
+    shift = opening * GATE_TRAVEL * layout.gate_direction
+    ax.add_patch(
+        patches.Rectangle(
+            (w / 2 - WALL_THICKNESS / 4, layout.door_y - DOOR_GAP / 2 + shift),
+            WALL_THICKNESS / 2 + 0.02,
+            DOOR_GAP,
+            color="#8c4d26",
         )
-        shift = result.trace["gate"][k] * GATE_TRAVEL * layout.gate_direction
+    )
+    ax.text(
+        w / 2 + 0.1, layout.door_y, "open" if is_open else "closed",
+        color=OPEN_COLOUR if is_open else CLOSED_COLOUR,
+        ha="center", va="center", fontsize=8, fontweight="bold", rotation=90,
+    )  # fmt: skip
+
+
+def _draw_robots(ax, result: EpisodeResult, k: int, adversary: int | None) -> None:
+    """Each robot at trace tick `k`: its path so far, its body and heading, its id, and
+    its label (the zone it was sent to)."""
+    import matplotlib.patches as patches
+
+    decision = decision_at(result, k)
+    for i, (x, y, theta) in enumerate(result.trace["poses"][k]):
+        colour = robot_colour(i, adversary)
+        adv = i == adversary
+        path = result.trace["poses"][0 : k + 1, i]
+        ax.plot(path[:, 0], path[:, 1], color=colour, lw=1, alpha=0.6)
         ax.add_patch(
-            patches.Rectangle(
-                (w / 2 - WALL_THICKNESS / 4, layout.door_y - DOOR_GAP / 2 + shift),
-                WALL_THICKNESS / 2 + 0.02,
-                DOOR_GAP,
-                color="#8c4d26",
+            patches.Circle(
+                (x, y), ROBOT_RADIUS, fc=colour, alpha=0.95,
+                ec="black" if adv else "white", lw=2.5 if adv else 1,
             )
-        )
-        ax.text(
-            w / 2 + 0.1, layout.door_y, "open" if is_open else "closed", color=state,
-            ha="center", va="center", fontsize=8, fontweight="bold", rotation=90,
         )  # fmt: skip
-        upto = slice(0, k + 1)
-        decision = decision_at(result, k)
-        for i, (x, y, theta) in enumerate(result.trace["poses"][k]):
-            colour = robot_colour(i, adversary)
-            adv = i == adversary
-            path = result.trace["poses"][upto, i]
-            ax.plot(path[:, 0], path[:, 1], color=colour, lw=1, alpha=0.6)
-            ax.add_patch(
-                patches.Circle(
-                    (x, y), ROBOT_RADIUS, fc=colour, alpha=0.95,
-                    ec="black" if adv else "white", lw=2.5 if adv else 1,
-                )
-            )  # fmt: skip
-            ax.plot([x, x + 0.12 * math.cos(theta)], [y, y + 0.12 * math.sin(theta)], "k-", lw=2)
-            ax.text(x, y, str(i), ha="center", va="center", color="white", fontsize=8)
-            label = robot_label(result, i, decision, adversary)
-            up = 1 if i % 2 == 0 else -1  # neighbours in a zone: labels above and below
-            ax.text(
-                x, y + up * (ROBOT_RADIUS + 0.04), label, color=colour, fontsize=8,
-                ha="center", va="bottom" if up > 0 else "top",
-                fontweight="bold" if adv else "normal",
-                bbox={"fc": "white", "ec": "none", "alpha": 0.75, "pad": 1},
-            )  # fmt: skip
-        fig.texts.clear()
-        if title:
-            fig.text(0.5, 0.965, title, ha="center", va="center", fontsize=9)
-        fig.text(0.5, 0.925, line, ha="center", va="center", fontsize=9, color=state,
-                 fontweight="bold")  # fmt: skip
-        fig.canvas.draw()
-        frames.append(np.asarray(fig.canvas.buffer_rgba())[..., :3].copy())
-    plt.close(fig)
-    return frames
+        ax.plot([x, x + 0.12 * math.cos(theta)], [y, y + 0.12 * math.sin(theta)], "k-", lw=2)
+        ax.text(x, y, str(i), ha="center", va="center", color="white", fontsize=8)
+        label = robot_label(result, i, decision, adversary)
+        up = 1 if i % 2 == 0 else -1  # neighbours in a zone: labels above and below
+        ax.text(
+            x, y + up * (ROBOT_RADIUS + 0.04), label, color=colour, fontsize=8,
+            ha="center", va="bottom" if up > 0 else "top",
+            fontweight="bold" if adv else "normal",
+            bbox={"fc": "white", "ec": "none", "alpha": 0.75, "pad": 1},
+        )  # fmt: skip
+
+
+def _draw_headline(fig, title: str, line: str, colour: str) -> None:
+    """The figure's title and status line (replacing the previous frame's)."""
+    fig.texts.clear()
+    if title:
+        fig.text(0.5, 0.965, title, ha="center", va="center", fontsize=9)
+    fig.text(0.5, 0.925, line, ha="center", va="center", fontsize=9, color=colour,
+             fontweight="bold")  # fmt: skip
 
 
 def write_video(frames: list[np.ndarray], out: Path, fps: int) -> None:

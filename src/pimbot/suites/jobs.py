@@ -226,11 +226,20 @@ class Kind:
     share: Callable[[Any, JobOptions, int], str | None] = lambda spec, options, devices: None
     """The program a job runs on: jobs of one kind with one (non-None) key form a group,
     run as one task that compiles it once; None: alone."""
+    compiles_a_training_program: bool = False
+    """Its jobs train (spec: a RunConfig): a group shares one `runner.ProgramCache`, whose
+    compiles the suite counts, and its strategy attacks (`train_strategies`)."""
 
 
 KINDS = {
     "train": Kind(
-        train_status, train_execute, train_progress, train_cost, train_describe, train_share
+        train_status,
+        train_execute,
+        train_progress,
+        train_cost,
+        train_describe,
+        train_share,
+        compiles_a_training_program=True,
     ),
     "profile": Kind(
         profile_status,

@@ -199,7 +199,7 @@ def execute_group(
     before = dict(_COMPILES)
     plugin_loader.load_plugins(plugins, from_env=False)  # once per process
     shared = cache = None
-    if jobs[0].kind == "train":
+    if KINDS[jobs[0].kind].compiles_a_training_program:
         from pimbot.suites.jobs import train_strategies
         from pimbot.training.runner import ProgramCache
 
@@ -414,6 +414,36 @@ def run(
     statuses = plan(jobs, suite_dir)
     check_dependencies(jobs, statuses, suite_dir)
     suite_dir.mkdir(parents=True, exist_ok=True)
+    index = start_index(jobs, statuses, suite_dir, suite_name)
+
+    todo = [job for job in jobs if statuses[job.name] != "finished"]
+    workers, devices = workers_and_devices(options, len(todo))
+    tasks = groups(todo, options.job_options, devices)
+    display = SweepDisplay(jobs, suite_dir, statuses, enabled=options.progress)
+    ledger = Ledger(suite_dir, index, planned_programs(tasks), display)
+    t0 = time.perf_counter()
+    backend = None
+    stopped_early = True  # until every task has ended
+    try:
+        if todo:
+            backend = make_backend(options, min(workers, len(tasks)), devices)
+            display.start([job.name for job in todo])
+            run_tasks(tasks, {job.name for job in jobs}, backend, ledger)
+            ledger.write()
+        stopped_early = False
+    finally:
+        display.close(ledger.programs if todo else None)
+        if backend is not None:
+            backend.shutdown(abandon=stopped_early)
+    ran = [job.name for job in todo]
+    return SweepResult(index, ledger.failed, time.perf_counter() - t0, ran, ledger.programs)
+
+
+def start_index(
+    jobs: list[Job], statuses: dict[str, str], suite_dir: Path, suite_name: str
+) -> dict[str, Any]:
+    """The index a sweep starts from, written: every job of `jobs` with its status (and
+    its wall time from an earlier sweep), and the jobs of earlier sweeps as they were."""
     previous = read_index(suite_dir) or {}
     entries = {e["name"]: e for e in previous.get("jobs", [])}
     for job in jobs:
@@ -427,83 +457,110 @@ def run(
         "jobs": sorted(entries.values(), key=lambda e: e["name"]),
     }
     write_index(suite_dir, index)
+    return index
 
-    todo = [job for job in jobs if statuses[job.name] != "finished"]
-    workers = options.workers or (cpu_count() if options.backend == "local" else len(todo) or 1)
-    workers = max(1, min(workers, len(todo) or 1))
+
+def workers_and_devices(options: SweepOptions, jobs_to_run: int) -> tuple[int, int]:
+    """(jobs at a time, XLA host devices each job shards its seeds over)."""
+    workers = options.workers or (cpu_count() if options.backend == "local" else jobs_to_run or 1)
+    workers = max(1, min(workers, jobs_to_run or 1))
     devices = options.devices_per_job or max(1, cpu_count() // workers)
-    tasks = groups(todo, options.job_options, devices)
-    programs: dict[str, Any] = {
-        "tasks": len(tasks),
-        "training_programs": sum(1 for t in tasks if t[0].kind == "train"),
-    } | {k: 0 for k in PROGRAM_COUNTS}
-    display = SweepDisplay(jobs, suite_dir, statuses, enabled=options.progress)
-    t0 = time.perf_counter()
-    failed: list[str] = []
-    backend = None
-    stopped_early = True  # until the loop below has seen every task end
-    try:
-        if todo:
-            backend = (
-                LocalBackend(min(workers, len(tasks)), devices, options)
-                if options.backend == "local"
-                else RayBackend(devices, options)
-            )
-            # largest first (the shortest makespan), each once its inputs are finished
-            waiting = sorted(tasks, key=lambda t: -sum(job_cost(j) for j in t))
-            selected = {job.name for job in jobs}
-            pending: dict[futures.Future, tuple[Job, ...]] = {}
-            display.start([job.name for job in todo])
-            while waiting or pending:
-                for task in list(waiting):  # submit every task whose inputs are finished
-                    # a need outside this selection was checked to be finished on disk
-                    inside = {job.name for job in task}
-                    needs = {d for job in task for d in job.after if d in selected} - inside
-                    states = [entries[d]["status"] for d in needs]
-                    if any(state == "failed" for state in states):
-                        waiting.remove(task)
-                        for job in task:
-                            entry = entries[job.name]
-                            entry.update(status="failed", error="a job it needs failed")
-                            failed.append(job.name)
-                            display.finished(job.name, entry)
-                    elif all(state == "finished" for state in states):
-                        waiting.remove(task)
-                        pending[backend.submit(task, suite_dir)] = task
-                if not pending:
-                    continue
-                done, _ = futures.wait(pending, timeout=0.5, return_when=futures.FIRST_COMPLETED)
-                for future in done:
-                    task = pending.pop(future)
-                    try:
-                        result = future.result()
-                        records = result["records"]
-                        for name in PROGRAM_COUNTS:
-                            programs[name] += result["programs"][name]
-                    except Exception as error:  # a lost worker must not lose the others
-                        records = {job.name: {"error": _one_line(error)} for job in task}
-                    for job in task:
-                        entry, record = entries[job.name], records[job.name]
-                        if "error" in record:
-                            entry.update(status="failed", error=record["error"])
-                            failed.append(job.name)
-                        else:
-                            entry.update(status="finished", wall_s=record["wall_s"])
-                            entry.pop("error", None)
-                        display.finished(job.name, entry)
-                    index["programs"] = programs
-                    write_index(suite_dir, index)
-                display.refresh()
-            index["programs"] = programs
-            write_index(suite_dir, index)
-        stopped_early = False
-    finally:
-        display.close(programs if todo else None)
-        if backend is not None:
-            backend.shutdown(abandon=stopped_early)
-    return SweepResult(
-        index, failed, time.perf_counter() - t0, [job.name for job in todo], programs
-    )
+    return workers, devices
+
+
+def planned_programs(tasks: list[tuple[Job, ...]]) -> dict[str, Any]:
+    """index.json "programs" before any task has run: the tasks, the training programs
+    planned (a task of a kind that compiles one), and `PROGRAM_COUNTS` at zero."""
+    training = sum(1 for t in tasks if KINDS[t[0].kind].compiles_a_training_program)
+    return {"tasks": len(tasks), "training_programs": training} | {k: 0 for k in PROGRAM_COUNTS}
+
+
+def make_backend(options: SweepOptions, workers: int, devices: int) -> LocalBackend | RayBackend:
+    if options.backend == "local":
+        return LocalBackend(workers, devices, options)
+    return RayBackend(devices, options)
+
+
+@dataclasses.dataclass
+class Ledger:
+    """What a running sweep records: its index (rewritten as each task ends), the programs
+    its tasks compiled, the jobs that failed, and the display."""
+
+    suite_dir: Path
+    index: dict[str, Any]
+    programs: dict[str, Any]
+    display: SweepDisplay
+    failed: list[str] = dataclasses.field(default_factory=list)
+    entries: dict[str, dict[str, Any]] = dataclasses.field(init=False)
+    """Job name -> its entry: the dict in `index["jobs"]`, updated in place."""
+
+    def __post_init__(self) -> None:
+        self.entries = {entry["name"]: entry for entry in self.index["jobs"]}
+
+    def failed_job(self, job: Job, error: str) -> None:
+        entry = self.entries[job.name]
+        entry.update(status="failed", error=error)
+        self.failed.append(job.name)
+        self.display.finished(job.name, entry)
+
+    def finished_job(self, job: Job, wall_s: float) -> None:
+        entry = self.entries[job.name]
+        entry.update(status="finished", wall_s=wall_s)
+        entry.pop("error", None)
+        self.display.finished(job.name, entry)
+
+    def task_ended(self, task: tuple[Job, ...], future: futures.Future) -> None:
+        """Records a task's jobs (all failed if its worker was lost) and writes the index."""
+        try:
+            result = future.result()
+            records = result["records"]
+            for name in PROGRAM_COUNTS:
+                self.programs[name] += result["programs"][name]
+        except Exception as error:  # a lost worker must not lose the others
+            records = {job.name: {"error": _one_line(error)} for job in task}
+        for job in task:
+            record = records[job.name]
+            if "error" in record:
+                self.failed_job(job, record["error"])
+            else:
+                self.finished_job(job, record["wall_s"])
+        self.write()
+
+    def write(self) -> None:
+        self.index["programs"] = self.programs
+        write_index(self.suite_dir, self.index)
+
+
+def run_tasks(tasks: list[tuple[Job, ...]], selected: set[str], backend, ledger: Ledger) -> None:
+    """Runs `tasks` on `backend`, largest first (the shortest makespan), each once the
+    selected jobs it needs have finished (a task whose inputs failed fails unrun), and
+    records each as it ends."""
+    waiting = sorted(tasks, key=lambda t: -sum(job_cost(j) for j in t))
+    pending: dict[futures.Future, tuple[Job, ...]] = {}
+    while waiting or pending:
+        for task in list(waiting):  # submit every task whose inputs are finished
+            inputs = input_statuses(task, selected, ledger)
+            if "failed" in inputs:
+                waiting.remove(task)
+                for job in task:
+                    ledger.failed_job(job, "a job it needs failed")
+            elif all(state == "finished" for state in inputs):
+                waiting.remove(task)
+                pending[backend.submit(task, ledger.suite_dir)] = task
+        if not pending:
+            continue
+        done, _ = futures.wait(pending, timeout=0.5, return_when=futures.FIRST_COMPLETED)
+        for future in done:
+            ledger.task_ended(pending.pop(future), future)
+        ledger.display.refresh()
+
+
+def input_statuses(task: tuple[Job, ...], selected: set[str], ledger: Ledger) -> list[str]:
+    """The statuses of the selected jobs outside `task` that its jobs need (a need outside
+    the selection was checked to be finished on disk)."""
+    inside = {job.name for job in task}
+    needs = {d for job in task for d in job.after if d in selected} - inside
+    return [ledger.entries[d]["status"] for d in needs]
 
 
 def _one_line(error: BaseException) -> str:

@@ -8,6 +8,18 @@ the metric rows are appended, the learner state is checkpointed and the rows go
 to the tracking backends, so a killed run resumes from the last chunk with
 identical results: all randomness lives in the state, and the same periods give
 the same numbers however they are split into calls.
+
+One run has four shapes, each made once and passed on:
+* the `pimbot train` command (`cli.commands.Train`): the options as typed;
+* `RunConfig`: what to run, in plain values (a suite job's spec, config.json's
+  `run_config`, what `--from` reloads);
+* `ResolvedRun` (`config.resolve`): the run validated, with its env, learner config,
+  attack and defenses as objects; its `identity` is what a resume must match;
+* the program (`program_of`): the ResolvedRun as its compiled chunk runs it, the attack in
+  its program form, so that runs differing only in numbers share one compiled program.
+`check` makes the checks before anything is written (the tracking clients, `resolve`,
+`check_run_dir`), once: a caller that makes them itself (the command line, before it
+starts the audit log) passes its ResolvedRun to `train` with `checked=True`.
 """
 
 from __future__ import annotations
@@ -27,7 +39,8 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 import pimbot
 from pimbot.attacks import strategy_union
-from pimbot.envs.core import InvalidParameter, with_traced
+from pimbot.contracts import preflight
+from pimbot.envs.core import InvalidParameter, program_env
 from pimbot.training import programs, store, tracking
 from pimbot.training.config import ResolvedRun, RunConfig, env_parameters, resolve
 from pimbot.training.progress import CompileNotice, Progress
@@ -106,7 +119,7 @@ def reduce_eval(
 ) -> dict[str, jax.Array]:
     """Means over evaluation episodes, the adversary's margins, and, where the optimum
     team return is known, the return ratio and the optimal rate (the optimum and the
-    threshold from `numbers`, the program's `programs.env_numbers`)."""
+    threshold from `numbers`, the program's `programs.optimum_numbers`)."""
     out = {name: value.mean(axis=0) for name, value in per_episode.items()}
     others = jnp.arange(env.num_agents) != adversary
     for name in ("return_env", "return_total"):
@@ -123,17 +136,18 @@ def reduce_eval(
 def make_chunk_fn(resolved: ResolvedRun, num_periods: int):
     """A jitted function running `num_periods` evaluation periods for every seed.
 
-    The attack, the defenses and the env's numbers (`programs.env_numbers`) are
-    arguments, not constants: their numeric parameters are traced, so runs that differ
-    only in them share the program.
+    The attack, the defenses, the env (`envs.core.program_env`) and its optimum's numbers
+    (`programs.optimum_numbers`) are arguments, not constants: pytrees whose numeric
+    leaves are traced and whose structure is static, so runs that differ only in numbers
+    share the program. (An env without traced numbers is passed as None and closed over.)
 
-    Returns fn(states [S], eval_roots [S], attack, defenses, env numbers) -> (states,
-    metrics with leaves [S, num_periods, ...]).
+    Returns fn(states [S], eval_roots [S], attack, defenses, env, optimum numbers) ->
+    (states, metrics with leaves [S, num_periods, ...]).
     """
     learner, cfg = resolved.learner, resolved.learner_config
 
-    def one_seed(state, eval_root, attack, defenses, numbers):
-        env = with_traced(resolved.env, numbers)
+    def one_seed(state, eval_root, attack, defenses, env, numbers):
+        env = resolved.env if env is None else env
 
         def period(state, _):
             state, train = jax.lax.scan(
@@ -156,25 +170,28 @@ def make_chunk_fn(resolved: ResolvedRun, num_periods: int):
         return jax.lax.scan(period, state, None, length=num_periods)
 
     # the states are donated: a chunk updates them in place (the caller keeps only the result)
-    return jax.jit(jax.vmap(one_seed, in_axes=(0, 0, None, None, None)), donate_argnums=0)
+    return jax.jit(jax.vmap(one_seed, in_axes=(0, 0, None, None, None, None)), donate_argnums=0)
 
 
 def make_init_fn(resolved: ResolvedRun):
-    """A jitted fn(init_keys [S], attack, defenses, env numbers) -> every seed's initial
-    state [S, ...]."""
+    """A jitted fn(init_keys [S], attack, defenses, env, optimum numbers) -> every seed's
+    initial state [S, ...] (the arguments of `make_chunk_fn`)."""
     learner, cfg = resolved.learner, resolved.learner_config
 
-    def init(key, attack, defenses, numbers):
-        env = with_traced(resolved.env, numbers)
+    def init(key, attack, defenses, env, numbers):
+        del numbers  # the chunk's (one argument list for both)
+        env = resolved.env if env is None else env
         return learner.init(key, env, cfg, attack, defenses)
 
-    return jax.jit(jax.vmap(init, in_axes=(0, None, None, None)))
+    return jax.jit(jax.vmap(init, in_axes=(0, None, None, None, None)))
 
 
 def program_args(resolved: ResolvedRun) -> tuple:
     """What a run passes its compiled init and chunk besides keys and states: (attack,
-    defenses, env numbers)."""
-    return resolved.attack, resolved.defenses, programs.env_numbers(resolved.env)
+    defenses, env, optimum numbers), pytrees whose numbers are the programs' traced
+    arguments."""
+    env = resolved.env
+    return resolved.attack, resolved.defenses, program_env(env), programs.optimum_numbers(env)
 
 
 def init_states(resolved: ResolvedRun, init_keys: jax.Array):
@@ -368,61 +385,34 @@ def _concat_periods(host: list) -> Any:
     return host[0] if len(host) == 1 else jax.tree.map(lambda *x: np.concatenate(x, 1), *host)
 
 
-def _start(
-    resolved: ResolvedRun,
-    args: tuple,
-    run_dir: Path,
-    periods: int,
-    cache: ProgramCache,
-    rows_ahead: int,
-):
+def _start(resolved: ResolvedRun, args: tuple, run_dir: Path, schedule: Schedule, cache):
     """The seeds' states (initial or from the checkpoint), their evaluation keys, the
-    iterations done, and the compiled call of `periods` evaluation periods (given
-    `args`, `program_args(resolved)`) with its compile time (0 when this process had
-    compiled the program already). Metric rows more than `rows_ahead` iterations (one
-    chunk) past the checkpoint mean the checkpoint was deleted or replaced by an older
-    one: refused."""
+    iterations done, and the compiled call of `schedule.per_call` evaluation periods
+    (given `args`, `program_args(resolved)`) with its compile time (0 when this process
+    had compiled the program already). Metric rows more than one chunk past the
+    checkpoint mean the checkpoint was deleted or replaced by an older one: refused."""
     run = resolved.run
     sharding, padded = seed_sharding(run.seeds)
     keys = seed_keys(run.first_seed, padded)
     init_keys = jax.vmap(lambda k: jax.random.fold_in(k, 0))(keys)
     eval_roots = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
     t0 = time.perf_counter()
-    key, entry = cache.entry(resolved, periods, padded, sharding)
+    key, entry = cache.entry(resolved, schedule.per_call, padded, sharding)
     fresh = entry[1] is None
-    states = entry[0](init_keys, *args)
-
-    done = 0
-    saved = store.load_checkpoint(run_dir)
-    if saved is not None:
-        state_bytes, done = saved
-        try:
-            states = flax.serialization.from_bytes(states, state_bytes)
-        except Exception as error:  # msgpack or structure mismatch: not this run's state
-            raise store.DamagedRunDir(
-                f"{run_dir / store.CHECKPOINT_DIR}: damaged (the state does not load: "
-                f"{type(error).__name__}); {store.RESTART_HINT}"
-            ) from None
-        counted = getattr(states, "iteration", None)  # the learner's own count, if it keeps one
-        if counted is not None and not (np.asarray(counted)[: run.seeds] == done).all():
-            raise store.DamagedRunDir(
-                f"{run_dir / store.CHECKPOINT_DIR}: damaged (its metadata says iteration "
-                f"{done}, the state it holds is at iteration "
-                f"{int(np.asarray(counted).reshape(-1)[0])}); {store.RESTART_HINT}"
-            )
+    states, done = _restore(entry[0](init_keys, *args), run_dir, run.seeds)
     # One row per seed and evaluation; fewer (deleted, truncated) refuse to resume.
     store.truncate_rows(
         run_dir,
         done,
         expected_rows=run.seeds * (done // resolved.eval_period),
-        rows_ahead=rows_ahead,
+        rows_ahead=schedule.chunk_iterations,
     )
     if sharding is not None:  # from the host: placing device arrays compiles a slicing
         # program per leaf shape (~25 small compiles, 1.5 s, for a LIO state)
         states, eval_roots = jax.device_put(jax.device_get((states, eval_roots)), sharding)
 
     if fresh:
-        lowered = make_chunk_fn(resolved, periods).lower(states, eval_roots, *args)
+        lowered = make_chunk_fn(resolved, schedule.per_call).lower(states, eval_roots, *args)
         entry[1] = lowered.compile()
     compile_s = time.perf_counter() - t0
     if fresh:
@@ -432,8 +422,33 @@ def _start(
     return states, eval_roots, done, entry[1], compile_s
 
 
+def _restore(states, run_dir: Path, seeds: int):
+    """(`states`, every seed's initial state, replaced by the checkpoint's; the iterations
+    it has done), or (`states`, 0) without a checkpoint. DamagedRunDir when the checkpoint
+    does not load, or holds a state at another iteration than its metadata says."""
+    saved = store.load_checkpoint(run_dir)
+    if saved is None:
+        return states, 0
+    state_bytes, done = saved
+    try:
+        states = flax.serialization.from_bytes(states, state_bytes)
+    except Exception as error:  # msgpack or structure mismatch: not this run's state
+        raise store.DamagedRunDir(
+            f"{run_dir / store.CHECKPOINT_DIR}: damaged (the state does not load: "
+            f"{type(error).__name__}); {store.RESTART_HINT}"
+        ) from None
+    counted = getattr(states, "iteration", None)  # the learner's own count, if it keeps one
+    if counted is not None and not (np.asarray(counted)[:seeds] == done).all():
+        raise store.DamagedRunDir(
+            f"{run_dir / store.CHECKPOINT_DIR}: damaged (its metadata says iteration "
+            f"{done}, the state it holds is at iteration "
+            f"{int(np.asarray(counted).reshape(-1)[0])}); {store.RESTART_HINT}"
+        )
+    return states, done
+
+
 def train(
-    run: RunConfig,
+    run: RunConfig | ResolvedRun,
     run_dir: str | Path,
     *,
     progress: bool = True,
@@ -442,11 +457,12 @@ def train(
     log: tuple[str, ...] = (),
     cache: ProgramCache | None = None,
     strategies: dict | None = None,
+    checked: bool = False,
 ) -> TrainResult:
     """Trains (or resumes, or reports finished) one run into `run_dir`.
 
     Args:
-        run: what to train.
+        run: what to train: a RunConfig, or the ResolvedRun its caller has made of it.
         run_dir: the run directory; rerunning on it resumes from the last checkpoint.
         progress: show a progress display on stderr (a compile notice, then a bar that
             moves every `CALL_ITERATIONS` iterations or evaluation period).
@@ -462,74 +478,134 @@ def train(
             as that member of `strategy_union.Strategies`, the one program of every run that
             differs from it only in numbers and in which of these attacks it is (same
             results; None: its own program).
+        checked: the caller has made `check`'s checks (nothing written since): `run` is
+            its ResolvedRun, `log` its parsed backends, and `run_dir` was checked under the
+            directory's lock (the command line, which checks before it starts the audit
+            log). False: `check` runs here.
     """
-    log = tracking.parse(log)
-    tracking.require_clients(log)  # before anything is written
-    resolved = resolve(run)
     run_dir = Path(run_dir)
-    check_run_dir(run_dir, resolved)
+    resolved, log = (run, tuple(log)) if checked else check(run, run_dir, log)
     if (run_dir / store.SUMMARY).exists():
         return TrainResult(run_dir, store.read_json(run_dir / store.SUMMARY), True)
 
     run_dir.mkdir(parents=True, exist_ok=True)
     if not (run_dir / store.CONFIG).exists():
         store.write_json(run_dir / store.CONFIG, run_metadata(resolved))
+    schedule = Schedule.of(resolved, chunk_iterations, progress)
+    program = program_of(resolved, strategies)
+    args = program_args(program)
+    cache = cache if cache is not None else ProgramCache()
 
+    trackers = tracking.Trackers(log, run_dir, seed_list(resolved.run))
+    t0 = time.perf_counter()
+    compile_s = _train_chunks(
+        resolved, program, args, run_dir, schedule, cache, trackers, on_chunk, progress
+    )
+    summary = summarize(run_dir)
+    summary["compile_s"] = compile_s
+    summary["wall_s_this_session"] = time.perf_counter() - t0
+    store.write_json(run_dir / store.SUMMARY, summary)
+    return TrainResult(run_dir, summary, False)
+
+
+def check(
+    run: RunConfig | ResolvedRun, run_dir: Path, log: tuple[str, ...] = ()
+) -> tuple[ResolvedRun, tuple[str, ...]]:
+    """What `train` checks before it writes anything, each once: the tracking backends
+    (known, their clients installed), the run (`resolve`, unless it is resolved already)
+    the run directory (`check_run_dir`) and, where a part of the run is a plugin's, one
+    abstractly traced iteration (`contracts.preflight.check_run`). Returns (the resolved
+    run, the backends)."""
+    backends = tracking.parse(log)
+    tracking.require_clients(backends)
+    resolved = run if isinstance(run, ResolvedRun) else resolve(run)
+    check_run_dir(run_dir, resolved)
+    preflight.check_run(  # a plugin's hooks traced once: one line at its file, nothing written
+        resolved.learner,
+        resolved.env,
+        resolved.learner_config,
+        resolved.attack,
+        resolved.defenses,
+        resolved.eval_episodes,
+    )
+    return resolved, backends
+
+
+def seed_list(run: RunConfig) -> list[int]:
+    return list(range(run.first_seed, run.first_seed + run.seeds))
+
+
+def run_title(resolved: ResolvedRun) -> str:
+    """The progress display's name of a run: `lio escape_room-v0 ×2 admo +health_monitor`."""
+    run = resolved.run
     title = f"{run.learner} {run.env_id} ×{run.seeds}"
     if run.attack:
         title += f" {run.attack}"
     if resolved.defenses:
         title += " +" + "+".join(d.name for d in resolved.defenses)
-    seeds = list(range(run.first_seed, run.first_seed + run.seeds))
-    period = resolved.eval_period
-    per_chunk = evals_per_chunk(resolved.num_evals, period, chunk_iterations)
-    per_call = periods_per_call(per_chunk, period, progress)
-    program = programs.with_attack(resolved, resolved.attack.program_form())
-    if strategies and strategy_union.shareable(resolved.attack):
-        program = programs.with_attack(
-            resolved, strategy_union.shared_attack(resolved.attack, strategies)
-        )
-    args = program_args(program)
-    cache = cache if cache is not None else ProgramCache()
+    return title
 
-    trackers = tracking.Trackers(log, run_dir, seeds)
-    status = "failed"
-    bar = None
-    t0 = time.perf_counter()
+
+def program_of(resolved: ResolvedRun, strategies: dict | None) -> ResolvedRun:
+    """The run as its compiled program runs it: its attack in the attack's program form,
+    or, a strategy attack given `strategies`, as its member of their `Strategies`."""
+    if strategies and strategy_union.shareable(resolved.attack):
+        attack = strategy_union.shared_attack(resolved.attack, strategies)
+        return programs.with_attack(resolved, attack)
+    return programs.with_attack(resolved, resolved.attack.program_form())
+
+
+@dataclasses.dataclass(frozen=True)
+class Schedule:
+    """How a session splits a run's iterations: evaluation periods of `period` iterations,
+    `per_call` of them in one compiled call, `per_chunk` (whole calls) between
+    checkpoints."""
+
+    period: int
+    per_chunk: int
+    per_call: int
+
+    @classmethod
+    def of(cls, resolved: ResolvedRun, chunk_iterations: int, progress: bool) -> Schedule:
+        period = resolved.eval_period
+        per_chunk = evals_per_chunk(resolved.num_evals, period, chunk_iterations)
+        return cls(period, per_chunk, periods_per_call(per_chunk, period, progress))
+
+    @property
+    def chunk_iterations(self) -> int:
+        return self.per_chunk * self.period
+
+
+def _train_chunks(
+    resolved: ResolvedRun,
+    program: ResolvedRun,
+    args: tuple,
+    run_dir: Path,
+    schedule: Schedule,
+    cache: ProgramCache,
+    trackers: tracking.Trackers,
+    on_chunk,
+    progress: bool,
+) -> float:
+    """Trains `resolved` (compiled as `program`, called with `args`) from its checkpoint
+    to its last iteration, a chunk at a time; after each, the rows are appended, the
+    state is checkpointed, and the trackers and `on_chunk` get the rows. Ends the
+    trackers with the session's status; returns the compile time."""
+    run, title = resolved.run, run_title(resolved)
+    status, bar = "failed", None
     try:
         with CompileNotice(title, enabled=progress):  # init and chunk compile: 10-20 s
             states, eval_roots, done, chunk_fn, compile_s = _start(
-                program, args, run_dir, per_call, cache, rows_ahead=per_chunk * period
+                program, args, run_dir, schedule, cache
             )
         trackers.catch_up(done)
         bar = Progress(title, run.iterations, done, enabled=progress)
         columns: list[str] | None = None
         while done < run.iterations:
-            t_chunk = time.perf_counter()
-            calls = []
-            for _ in range(per_chunk // per_call):  # queued: the device runs them back to back
-                states, call_metrics = chunk_fn(states, eval_roots, *args)
-                calls.append(call_metrics)
-            for i, call_metrics in enumerate(calls[:-1] if progress else ()):
-                success = np.asarray(call_metrics["eval"]["success"])[: run.seeds, -1]
-                bar.update(done + (i + 1) * per_call * period, float(success.mean()))
-            jax.block_until_ready(states)
-            chunk_s = time.perf_counter() - t_chunk
-            host_calls, host_states = jax.device_get((calls, states))  # one transfer
-            chunk_metrics = _concat_periods(host_calls)
-            done += per_chunk * period
-            perf = {
-                "perf/iters_per_s": per_chunk * period / chunk_s,
-                "perf/seed_iters_per_s": per_chunk * period * run.seeds / chunk_s,
-            }
-            rows = metric_rows(resolved, chunk_metrics, seeds, perf)
-            where = first_non_finite(rows, host_states)
-            if where is not None:  # nothing of this chunk is written
-                raise Diverged(
-                    f"diverged: {where}; the last finite checkpoint (iteration "
-                    f"{done - per_chunk * period}) is kept. Lower the learning rates "
-                    "(--hp) and rerun with --restart"
-                )
+            calls = (chunk_fn, eval_roots, args)
+            states, host_states, rows = _run_chunk(resolved, calls, states, schedule, done, bar)
+            _check_finite(rows, host_states, done)
+            done += schedule.chunk_iterations
             columns = columns or list(rows[0])
             store.append_rows(run_dir, columns, rows)
             store.save_checkpoint(run_dir, flax.serialization.to_bytes(host_states), done)
@@ -537,8 +613,7 @@ def train(
             if on_chunk is not None:
                 on_chunk(done, states, rows)
             latest = [r["eval/success"] for r in rows if r["iteration"] == done]
-            success = float(np.mean(latest))
-            bar.update(done, success)
+            bar.update(done, float(np.mean(latest)))
         status = "finished"
     except KeyboardInterrupt:
         status = "killed"
@@ -547,9 +622,41 @@ def train(
         if bar is not None:
             bar.close()
         trackers.close(status)
+    return compile_s
 
-    summary = summarize(run_dir)
-    summary["compile_s"] = compile_s
-    summary["wall_s_this_session"] = time.perf_counter() - t0
-    store.write_json(run_dir / store.SUMMARY, summary)
-    return TrainResult(run_dir, summary, False)
+
+def _run_chunk(resolved: ResolvedRun, calls: tuple, states, schedule: Schedule, done: int, bar):
+    """One chunk from iteration `done`: its compiled calls (`calls`: the chunk fn, the
+    evaluation keys and the program's arguments) queued back to back, the bar moved after
+    each but the last. Returns (the states, on the device and on the host, and the chunk's
+    metric rows, whose perf/ columns are its throughput)."""
+    chunk_fn, eval_roots, args = calls
+    run, iterations = resolved.run, schedule.chunk_iterations
+    t_chunk = time.perf_counter()
+    metrics = []
+    for _ in range(schedule.per_chunk // schedule.per_call):  # queued: run back to back
+        states, call_metrics = chunk_fn(states, eval_roots, *args)
+        metrics.append(call_metrics)
+    for i, call_metrics in enumerate(metrics[:-1] if bar.enabled else ()):
+        success = np.asarray(call_metrics["eval"]["success"])[: run.seeds, -1]
+        bar.update(done + (i + 1) * schedule.per_call * schedule.period, float(success.mean()))
+    jax.block_until_ready(states)
+    chunk_s = time.perf_counter() - t_chunk
+    host_metrics, host_states = jax.device_get((metrics, states))  # one transfer
+    perf = {
+        "perf/iters_per_s": iterations / chunk_s,
+        "perf/seed_iters_per_s": iterations * run.seeds / chunk_s,
+    }
+    rows = metric_rows(resolved, _concat_periods(host_metrics), seed_list(run), perf)
+    return states, host_states, rows
+
+
+def _check_finite(rows: list[dict[str, Any]], host_states, start: int) -> None:
+    """Raises Diverged, before anything of the chunk from iteration `start` is written,
+    where its rows or states are not finite."""
+    where = first_non_finite(rows, host_states)
+    if where is not None:
+        raise Diverged(
+            f"diverged: {where}; the last finite checkpoint (iteration {start}) is kept. "
+            "Lower the learning rates (--hp) and rerun with --restart"
+        )

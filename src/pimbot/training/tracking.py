@@ -233,10 +233,10 @@ class Trackers:
     """The chosen backends of one run, started together; `log` and `close` go to each."""
 
     def __init__(self, backends: Iterable[str], run_dir: Path, seeds: list[int]):
-        """Starts each backend on `run_dir`, whose config.json it logs."""
+        """Starts each backend on `run_dir`, whose config.json it logs. `backends` were
+        checked before anything was written (`parse`, `require_clients`: `runner.check`)."""
         self.run_dir = run_dir = Path(run_dir)
         backends = tuple(backends)
-        require_clients(backends)
         config = store.read_json(run_dir / store.CONFIG) if backends else {}
         self.started: dict[str, Any] = {}
         for name in backends:
