@@ -207,6 +207,7 @@ def write_report(suite_dir: Path, out: Path) -> Path:
     """Writes out/report.md, out/report.html, out/figures/ (PNG and SVG) and out/tables/;
     returns `out`."""
     out.mkdir(parents=True, exist_ok=True)
+    store.check_inside(out, (FIGURES, TABLES, MARKDOWN, HTML))
     clear_figures(out)
     report = build(suite_dir, out)
     (out / TABLES).mkdir(exist_ok=True)

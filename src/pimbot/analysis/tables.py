@@ -13,6 +13,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import html
+import io
 import re
 from pathlib import Path
 from typing import Any
@@ -20,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from pimbot import statistics
+from pimbot.training import store
 
 MISSING = "–"
 INTERVAL = "[interval]"
@@ -116,19 +118,20 @@ def write_csv(table: Table, path: Path) -> None:
     for name, is_estimate in zip(table.header, estimates, strict=True):
         base = re.sub(r"\s*\[[^\]]*\]$", "", name)  # "success [CI]" -> success, lo, hi
         header += [base, f"{base} lo", f"{base} hi", f"{base} interval"] if is_estimate else [name]
-    with open(path, "w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(header)
-        for row in table.rows:
-            out: list[Any] = []
-            for cell, is_estimate in zip(row, estimates, strict=True):
-                if not is_estimate:
-                    out.append("" if cell is None else cell)
-                elif isinstance(cell, Estimate):
-                    out += [cell.mean, cell.lo, cell.hi, cell.kind]
-                else:
-                    out += ["", "", "", ""]
-            writer.writerow(out)
+    buffer = io.StringIO(newline="")
+    writer = csv.writer(buffer)
+    writer.writerow(header)
+    for row in table.rows:
+        out: list[Any] = []
+        for cell, is_estimate in zip(row, estimates, strict=True):
+            if not is_estimate:
+                out.append("" if cell is None else cell)
+            elif isinstance(cell, Estimate):
+                out += [cell.mean, cell.lo, cell.hi, cell.kind]
+            else:
+                out += ["", "", "", ""]
+        writer.writerow(out)
+    store.write_atomic(path, buffer.getvalue().encode())
 
 
 # --- `pimbot table` --------------------------------------------------------------------

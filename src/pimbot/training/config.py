@@ -108,6 +108,14 @@ def env_arguments(run: RunConfig, learner: learners.LearnerDef) -> dict[str, Any
     return learner.default_env_params(envs.spec(run.env_id)) | dict(run.env_params)
 
 
+SEED_LIMIT = 2**32
+"""JAX's PRNG seeds are 32-bit: a run's seeds first_seed … first_seed + seeds − 1 lie below
+this (a larger seed would wrap onto a smaller one's stream and repeat its results)."""
+
+ITERATION_LIMIT = 2**31 - 1
+"""The compiled program counts iterations in int32."""
+
+
 def resolve(run: RunConfig) -> ResolvedRun:
     """Validates `run` and builds its env and learner config.
 
@@ -116,9 +124,9 @@ def resolve(run: RunConfig) -> ResolvedRun:
     """
     learner = learners.get(run.learner)
     env = envs.make(run.env_id, **env_arguments(run, learner))
-    check_int("seeds", run.seeds, 1)
-    check_int("first_seed", run.first_seed, 0)
-    check_int("iterations", run.iterations, 1)
+    check_int("seeds", run.seeds, 1, SEED_LIMIT)
+    check_int("first_seed", run.first_seed, 0, SEED_LIMIT - run.seeds)
+    check_int("iterations", run.iterations, 1, ITERATION_LIMIT)
     eval_period, eval_episodes = run.resolved_eval()
     check_int("eval_period", eval_period, 1)
     check_int("eval_episodes", eval_episodes, 1)

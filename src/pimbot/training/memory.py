@@ -29,6 +29,15 @@ def state_bytes(resolved: ResolvedRun) -> int:
     return per_seed * resolved.run.seeds
 
 
+def evaluation_bytes(resolved: ResolvedRun) -> int:
+    """A lower bound on an evaluation's memory: its episodes run at once, one observation
+    (float32) per agent and step for every episode of every seed."""
+    env = resolved.env
+    steps = getattr(env, "max_steps", 1)
+    per_step = env.num_agents * env.obs_dim * 4
+    return resolved.run.seeds * resolved.eval_episodes * steps * per_step
+
+
 def available_bytes() -> int:
     """Memory the run can use: the first device's free memory where the backend reports
     it (GPU), else the host's available memory."""
@@ -39,9 +48,18 @@ def available_bytes() -> int:
 
 
 def check_fits(resolved: ResolvedRun, available: int | None = None) -> None:
-    """Raises InvalidParameter when the state alone needs more than `available` bytes."""
-    needed = state_bytes(resolved)
+    """Raises InvalidParameter when the evaluation's observations or the learner state alone
+    need more than `available` bytes."""
     available = available_bytes() if available is None else available
+    evaluation = evaluation_bytes(resolved)
+    if evaluation > available:
+        raise InvalidParameter(
+            f"eval_episodes: {resolved.eval_episodes} evaluation episodes × "
+            f"{resolved.run.seeds} seeds need at least {evaluation / 2**30:.1f} GiB for their "
+            f"observations alone, more than the {available / 2**30:.1f} GiB available; "
+            "use fewer evaluation episodes"
+        )
+    needed = state_bytes(resolved)
     if needed > available:
         params = ", ".join(f"{k}={v}" for k, v in resolved.run.env_params) or "defaults"
         raise InvalidParameter(

@@ -108,8 +108,8 @@ def seed_sharding(num_seeds: int) -> tuple[NamedSharding | None, int]:
 def evals_per_chunk(num_evals: int, eval_period: int, target: int = TARGET_CHUNK_ITERATIONS) -> int:
     """Largest divisor of num_evals whose chunk stays within `target` iterations (≥ 1)."""
     best = 1
-    for k in range(1, num_evals + 1):
-        if num_evals % k == 0 and k * eval_period <= target:
+    for k in range(1, min(num_evals, target // eval_period) + 1):  # k·period ≤ target
+        if num_evals % k == 0:
             best = k
     return best
 

@@ -16,11 +16,13 @@ import contextlib
 import csv
 import fcntl
 import hashlib
+import io
 import json
 import math
 import os
 import shutil
 import subprocess
+import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -80,13 +82,35 @@ def clear_run(run_dir: Path) -> None:
 
 
 def write_atomic(path: Path, data: bytes) -> None:
-    """Writes `data` to `path` so that readers see the old or the new file, never a mix."""
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    """Writes `data` to `path` so that readers see the old or the new file, never a mix:
+    through a temporary file created exclusively in the same directory (never a file or
+    link already there), renamed over `path` (a link at `path` is replaced, its target
+    left alone)."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def check_inside(root: Path, names: tuple[str, ...]) -> None:
+    """Raises InvalidParameter when `root/name` (or anything directly in it, for a folder)
+    is a symbolic link: a writer of `root` writes only inside it, never through a link
+    that may lead elsewhere. Checked before anything is written."""
+    for name in names:
+        path = root / name
+        inside = list(path.iterdir()) if path.is_dir() and not path.is_symlink() else []
+        for candidate in (path, *inside):
+            if candidate.is_symlink():
+                raise InvalidParameter(
+                    f"{candidate}: a symbolic link (to {os.readlink(candidate)}); pimbot "
+                    f"writes only inside {root}, never through a link: remove it"
+                )
 
 
 def finite_json(obj: Any) -> Any:
@@ -282,12 +306,11 @@ def truncate_rows(
     if not columns:
         path.unlink()
         return
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=columns)
-        writer.writeheader()
-        writer.writerows(rows)
-    os.replace(tmp, path)
+    buffer = io.StringIO(newline="")
+    writer = csv.DictWriter(buffer, fieldnames=columns)
+    writer.writeheader()
+    writer.writerows(rows)
+    write_atomic(path, buffer.getvalue().encode())
 
 
 def _keep_checkpointed_bytes(run_dir: Path, max_iteration: int) -> bool:

@@ -1,0 +1,104 @@
+"""Hardening v2: writers stay inside their directory, numbers are bounded before work.
+
+Each case is a command a user could type; the answer is one line, exit code 2, and
+nothing written (or nothing outside the directory touched)."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from pimbot import cli
+from pimbot.training import runner, store
+
+
+def run_cli(argv: list[str], capsys) -> tuple[int, str]:
+    code = cli.main(argv)
+    err = capsys.readouterr().err.strip()
+    return code, err
+
+
+def test_report_refuses_a_figures_folder_that_links_out_and_leaves_its_target_alone(
+    tmp_path, capsys
+):
+    suite, user = tmp_path / "suite", tmp_path / "user"
+    suite.mkdir(), user.mkdir()
+    (user / "mine.png").write_bytes(b"the user's figure")
+    (suite / "figures").symlink_to(user)
+    code, err = run_cli(["report", str(suite)], capsys)
+    assert code == 2 and len(err.splitlines()) == 1
+    assert "figures: a symbolic link" in err and "never through a link" in err
+    assert (user / "mine.png").read_bytes() == b"the user's figure"
+    assert sorted(p.name for p in suite.iterdir()) == ["figures"]
+
+
+@pytest.mark.parametrize("name", ["tables/provenance.csv", "report.md"])
+def test_report_refuses_a_file_that_links_out(tmp_path, capsys, name):
+    suite, target = tmp_path / "suite", tmp_path / "target.txt"
+    (suite / "tables").mkdir(parents=True)
+    target.write_text("keep")
+    (suite / name).symlink_to(target)
+    code, err = run_cli(["report", str(suite)], capsys)
+    assert code == 2 and "a symbolic link" in err and name.split("/")[-1] in err
+    assert target.read_text() == "keep"
+
+
+def test_write_atomic_never_writes_through_a_link_at_the_old_temporary_name(tmp_path):
+    target, path = tmp_path / "target.txt", tmp_path / "report.md"
+    target.write_text("keep")
+    (tmp_path / "report.md.tmp").symlink_to(target)
+    store.write_atomic(path, b"new")
+    assert target.read_text() == "keep"
+    assert path.read_bytes() == b"new" and not path.is_symlink()
+    assert not list(tmp_path.glob(".report.md.*"))  # no temporary file left
+
+
+@pytest.mark.parametrize(
+    "args, expected",
+    [
+        (["--first-seed", "4294967296"], "first_seed: must be an integer in [0, 4294967294]"),
+        (["--first-seed", "4294967295"], "first_seed: must be an integer in [0, 4294967294]"),
+        (["--iterations", str(10**20)], "iterations: must be an integer in [1, 2147483647]"),
+        (["--eval-episodes", "1000000000"], "eval_episodes: 1000000000 evaluation episodes"),
+    ],
+)
+def test_numbers_beyond_what_the_program_represents_are_refused_before_work(
+    tmp_path, capsys, args, expected
+):
+    out = tmp_path / "run"
+    argv = ["train", "escape_room-v0", "--seeds", "2", "--out", str(out), *args]
+    if "--iterations" not in args:
+        argv += ["--iterations", "100"]
+    code, err = run_cli(argv, capsys)
+    assert code == 2 and len(err.splitlines()) == 1 and expected in err, err
+    assert not out.exists()
+
+
+def test_the_chunk_plan_takes_no_time_proportional_to_the_iterations():
+    start = time.perf_counter()
+    assert runner.evals_per_chunk(10**12, 100, 100) == 1
+    assert runner.evals_per_chunk(10**12, 1, 500) == 500
+    assert time.perf_counter() - start < 1.0
+    # the same answers as the full search on small inputs
+    for num_evals in range(1, 60):
+        for period in (1, 3, 7, 100):
+            for target in (1, 50, 500):
+                full = max(
+                    [
+                        k
+                        for k in range(1, num_evals + 1)
+                        if num_evals % k == 0 and k * period <= target
+                    ]
+                    or [1]
+                )
+                assert runner.evals_per_chunk(num_evals, period, target) == full
+
+
+def test_a_tables_csv_is_written_whole(tmp_path):
+    from pimbot.analysis.tables import Table, write_csv
+
+    path = tmp_path / "t.csv"
+    write_csv(Table(["a", "b"], [[1, "x|y"]]), path)
+    assert path.read_text().splitlines() == ["a,b", "1,x|y"]
+    assert [p.name for p in tmp_path.iterdir()] == ["t.csv"]
