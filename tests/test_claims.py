@@ -160,6 +160,33 @@ def test_a_cause_is_named_only_where_pimbot_and_the_original_code_differ():
     assert theirs.causes == (verdicts.PAPER_CODE,)
 
 
+def test_no_original_log_names_no_cause():
+    alone = judging.disagreement("margin -0.1 not above 0", None)
+    assert alone.kind == verdicts.INCONCLUSIVE and not alone.causes
+    assert "margin -0.1 not above 0" in alone.reason
+    assert "no original-code log at these settings" in alone.reason
+    assert "no cause can be named" in alone.reason
+
+
+def test_our_implementation_needs_a_significant_difference_named_in_full():
+    ours = np.array([0.9, 0.8, 0.95, 0.85, 0.9, 0.88, 0.92, 0.87, 0.9, 0.91])
+    logs = np.array([0.0, 0.01, 0.0, 0.02, 0.0])
+    v = judging.disagreement("0.89 not ≤ 0.05", True, ours, logs)
+    assert v.kind == verdicts.REFUTED and v.causes == (verdicts.IMPLEMENTATION,)
+    p = statistics.difference_p_value(ours, logs)
+    assert p < judging.DIFFERS_P and f"p = {p:.3f}" in v.reason
+    # Both distributions: n, mean and median of each.
+    assert "ours n = 10, mean 0.888, median 0.900" in v.reason
+    assert "the logs' n = 5, mean 0.006, median 0.000" in v.reason
+
+
+def test_logs_that_reproduce_the_paper_without_per_seed_values_name_no_cause():
+    for ours, logs in ((None, None), (np.full(10, 0.9), None), (np.full(10, 0.9), np.array([]))):
+        v = judging.disagreement("0.9 not ≤ 0.05", True, ours, logs)
+        assert v.kind == verdicts.INCONCLUSIVE and not v.causes
+        assert "reproduce the paper" in v.reason and "no per-seed values" in v.reason
+
+
 # --- C1, C3, C4 ---------------------------------------------------------------------------
 
 
@@ -251,7 +278,8 @@ def test_c1b_speed_by_both_criteria_at_equal_horizon(tmp_path):
         "30,000 it",
     )
     slow = [run("e", "clean", er(2, 1), 10_000), run("f", "self", er(2, 1), 15_000), *fast[2:]]
-    assert attack_claims.c1b(data_of(slow)).judged.causes == (verdicts.IMPLEMENTATION,)
+    slower = attack_claims.c1b(data_of(slow)).judged  # no original-code log: no cause
+    assert slower.kind == verdicts.INCONCLUSIVE and "no original-code log" in slower.reason
     few = [run("g", "clean", er(2, 1), 10_000, 3), run("h", "self", er(2, 1), 15_000, 3)]
     assert attack_claims.c1b(data_of(few + fast[2:])).judged.kind == verdicts.INCONCLUSIVE
 
@@ -339,7 +367,8 @@ def test_c7_er_shortfall_classified_by_the_transfer_counterfactual(tmp_path):
         )
 
     base = [run("clean", 0.2), run("admo", 0.05, attack="admo")]
-    assert reciprocators.c7(base).judged.causes == (verdicts.IMPLEMENTATION,)
+    short = reciprocators.c7(base).judged  # no run at the code's settings: no cause
+    assert short.kind == verdicts.INCONCLUSIVE and "no run at the original code's" in short.reason
     transfer = run("transfer", 0.95, env_id="escape_room_transfer-v0")
     assert reciprocators.c7([*base, transfer]).judged.causes == (verdicts.PAPER_ENVIRONMENT,)
     code = run("code", 0.1, config={"lr": 1e-4, "gamma": 0.99, "grudge": "accumulated"})

@@ -108,6 +108,15 @@ def structure_text(env_params: dict, idle_agent: int, reachable: bool) -> str:
 DIFFERS_P = 0.05
 """Below this permutation p-value pimbot's seeds and the original code's logs differ."""
 
+NO_LOG = "no original-code log at these settings: no cause can be named"
+"""What an unexplained disagreement lacks where the original code left no log."""
+
+
+def distribution_text(values: np.ndarray) -> str:
+    """ "n = 10, mean 0.227, median 0.005": one side of a two-sample test, named."""
+    values = np.asarray(values, dtype=float)
+    return f"n = {values.size}, mean {values.mean():.3f}, median {float(np.median(values)):.3f}"
+
 
 def disagreement(
     reason: str,
@@ -115,29 +124,37 @@ def disagreement(
     ours: np.ndarray | None = None,
     original: np.ndarray | None = None,
 ) -> Verdict:
-    """A refutation on learning evidence: the original code's logs, where they cover it,
-    decide between our implementation (they reproduce the paper) and the paper (they agree
-    with us); without a log the unexplained difference is ours.
+    """A refutation on learning evidence, its cause named only from evidence.
 
-    Given the per-seed values behind the rule (`ours`, and `original` per log), "our
-    implementation" also needs the two to differ: where a permutation test of their means
-    cannot tell them apart (p ≥ DIFFERS_P), the logs reproducing the paper and pimbot not
-    doing so is what a few seeds of a bimodal outcome give, and the verdict is
-    inconclusive (too few seeds)."""
+    - No original-code log (`original_agrees_with_paper` None): inconclusive, saying so;
+      an unexplained difference is nobody's defect by default.
+    - The logs agree with pimbot (False): the paper contradicts its own code.
+    - The logs reproduce the paper (True): "our implementation" only where pimbot's
+      per-seed values (`ours`) and the logs' (`original`, one per log, at the same
+      horizon) differ by a permutation test of their means, p < DIFFERS_P; the verdict
+      names both distributions and p. Without per-seed values to test, or where the test
+      cannot tell them apart (what a few seeds of a bimodal outcome give), inconclusive."""
     if original_agrees_with_paper is None:
-        return verdicts.refuted(verdicts.IMPLEMENTATION, f"{reason} (no original-code log)")
-    if original_agrees_with_paper:
-        if ours is not None and original is not None and len(ours) and len(original):
-            p = difference_p_value(ours, original)
-            if p >= DIFFERS_P:
-                return verdicts.inconclusive(
-                    f"{reason}; the original code's logs reproduce the paper, but their "
-                    f"{len(original)} and our {len(ours)} seeds do not differ (permutation "
-                    f"test of the means, p = {p:.2f}): too few seeds to name a cause"
-                )
+        return verdicts.inconclusive(f"{reason}; {NO_LOG}")
+    if not original_agrees_with_paper:
         return verdicts.refuted(
-            verdicts.IMPLEMENTATION, f"{reason}; the original code's logs reproduce the paper"
+            verdicts.PAPER_CODE, f"{reason}; the original code's logs agree with pimbot"
+        )
+    reproduce = f"{reason}; the original code's logs reproduce the paper"
+    if ours is None or original is None or not len(ours) or not len(original):
+        return verdicts.inconclusive(
+            f"{reproduce}, but there are no per-seed values to test against ours: no cause "
+            "can be named"
+        )
+    p = difference_p_value(ours, original)
+    sides = f"ours {distribution_text(ours)}; the logs' {distribution_text(original)}"
+    if p >= DIFFERS_P:
+        return verdicts.inconclusive(
+            f"{reproduce}, but theirs and ours do not differ ({sides}; permutation test of "
+            f"the means, p = {p:.2f}): too few seeds to name a cause"
         )
     return verdicts.refuted(
-        verdicts.PAPER_CODE, f"{reason}; the original code's logs agree with pimbot"
+        verdicts.IMPLEMENTATION,
+        f"{reproduce}, and ours differ from them at the same horizon ({sides}; permutation "
+        f"test of the means, p = {p:.3f} < {DIFFERS_P:g})",
     )

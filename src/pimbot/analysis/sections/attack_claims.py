@@ -153,7 +153,8 @@ def c1a(data: Runs) -> Claim:
         )
         if judged is None:
             agrees = None if original is None else original.lo > 0
-            judged = judging.disagreement(f"margin {margin} not above 0", agrees)
+            ours, theirs = data.finals(run, "eval/adversary_margin_env", run.curves.horizon)
+            judged = judging.disagreement(f"margin {margin} not above 0", agrees, ours, theirs)
         parts[env] = judged
         numbers.append(row)
     return Claim(
@@ -326,10 +327,11 @@ def c3(data: Runs) -> Claim:
         numbers.append(row)
         if not reachable:  # structural: the env's rules decide; the runs must agree
             lines.append(f"{env} structural: {structure}; measured {final}")
-            if final.hi > 0:
+            if final.hi > 0:  # shown by the run: our env's rules and our run contradict
                 parts[env] = verdicts.refuted(
                     verdicts.IMPLEMENTATION,
-                    f"the env's rules forbid success, yet success {final} was measured",
+                    f"the env's rules forbid success ({structure}), yet success {final} was "
+                    f"measured in {run.seeds} seeds",
                 )
             else:
                 parts[env] = verdicts.reproduced(f"structural, measured {final}")
@@ -339,8 +341,9 @@ def c3(data: Runs) -> Claim:
                 parts[env] = verdicts.reproduced(f"evidence, solved: {final}")
             else:
                 agrees = None if original is None else original.mean >= SOLVED
+                ours, theirs = data.finals(run, "eval/success", run.curves.horizon)
                 parts[env] = judging.disagreement(
-                    f"evidence: success {final} not ≥ {SOLVED:g}", agrees
+                    f"evidence: success {final} not ≥ {SOLVED:g}", agrees, ours, theirs
                 )
     return Claim(
         "C3",
@@ -509,9 +512,7 @@ def admo_parts(data: Runs, attack: str) -> tuple[dict[str, Verdict], list]:
         parts[f"IPD {run.condition} flat"] = (
             verdicts.reproduced(f"cooperation change {change}")
             if flat
-            else verdicts.refuted(
-                verdicts.IMPLEMENTATION, f"cooperation change {change} beyond ±{FLAT:g}"
-            )
+            else judging.disagreement(f"cooperation change {change} beyond ±{FLAT:g}", None)
         )
     return parts, rows
 
@@ -535,8 +536,8 @@ def admo_run(
     row.append(f"{steps:.2f} ({(steps - clean_steps) / clean_steps:+.0%})")
     parts = {}
     if mode == "stealthy" or single:
-        parts[f"{name} margin"] = judging.above(margin, 0.0, "margin") or verdicts.refuted(
-            verdicts.IMPLEMENTATION, f"margin {margin} not above 0"
+        parts[f"{name} margin"] = judging.above(margin, 0.0, "margin") or judging.disagreement(
+            f"margin {margin} not above 0", None
         )
         if own_gain is None:
             parts[f"{name} own success"] = verdicts.inconclusive(
@@ -545,17 +546,17 @@ def admo_run(
         else:
             parts[f"{name} own success"] = judging.above(
                 own_gain, 0.0, "exit success − clean per-agent mean"
-            ) or verdicts.refuted(
-                verdicts.IMPLEMENTATION,
+            ) or judging.disagreement(
                 f"own exit success {own} not above the clean per-agent mean "
                 f"(difference {own_gain})",
+                None,
             )
     if mode == "disrupt" and not data.success_reachable(run):
         parts[f"{name} disrupts"] = (
             verdicts.reproduced(f"Δ success {d_success}")
             if d_success.hi < 0
-            else verdicts.refuted(
-                verdicts.IMPLEMENTATION, f"non-redundant task, Δ success {d_success} not below 0"
+            else judging.disagreement(
+                f"non-redundant task, Δ success {d_success} not below 0", None
             )
         )
     if mode == "disrupt" and not single:
@@ -564,7 +565,7 @@ def admo_run(
     parts[f"{name} steps"] = (
         verdicts.reproduced(f"steps {change:.0%} from clean")
         if change <= MODEST
-        else verdicts.refuted(verdicts.IMPLEMENTATION, f"steps change {change:.0%} > {MODEST:.0%}")
+        else judging.disagreement(f"steps change {change:.0%} > {MODEST:.0%}", None)
     )
     return row, parts
 

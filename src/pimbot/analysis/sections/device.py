@@ -111,8 +111,8 @@ def _modest(est: Estimate | None, at_slowest: float | None, slowest: int, contex
     overhead the paper reports fits its code's scheduler of extra ordinary steps, not the
     attack it describes); our setting where a slower cadence amortizes it (the update
     step dominates: its cost against a decision depends on the machine and the cadence;
-    the paper gives its profile no cadence, docs/profiling.md); else our implementation
-    (ADMO's decisions themselves are dearer)."""
+    the paper gives its profile no cadence, docs/profiling.md); else inconclusive: no
+    difference from the original code is shown, so no cause is named."""
     if est is None:
         return verdicts.inconclusive("no paired rounds at the training cadence")
     text = f"amortized overhead ({context['basis']}) {est} % over {context['rounds']} rounds"
@@ -138,11 +138,16 @@ def _modest(est: Estimate | None, at_slowest: float | None, slowest: int, contex
             f"{at_slowest:+.1f} % (the paper gives its profile no cadence: docs/profiling.md)"
             + (f"; the published code's ADMO {code} %" if code is not None else ""),
         )
-    return verdicts.refuted(
-        verdicts.IMPLEMENTATION,
+    missing = (
+        "the published code's ADMO not profiled at this cadence: no cause can be named"
+        if code is None
+        else f"the published code's ADMO {code} % at the same cadence is not modest either: "
+        "no difference from the original code shown, no cause can be named"
+    )
+    return verdicts.inconclusive(
         f"{text} > {MODEST_PERCENT:g} %, and still {fmt(at_slowest, 1)} % at {slowest} "
         f"decisions per update (ADMO's decisions cost "
-        f"{context['latency_percent']:+.1f} % more than benign ones)",
+        f"{context['latency_percent']:+.1f} % more than benign ones); {missing}",
     )
 
 
@@ -196,7 +201,8 @@ def _value(entry: dict, path: tuple[str, ...]):
 def _unsaturated(admo: dict, benign: dict, cores: int, shared: bool) -> Verdict:
     """No sustained saturation: ADMO's mean process CPU (and mean GPU, where measured)
     below the bound. A saturated ADMO run is our setting where the benign run saturates
-    too (the machine), our implementation where only ADMO does. Unsaturated on a
+    too (the machine), inconclusive where only ADMO does (no profile of the published
+    code's saturation to name a cause). Unsaturated on a
     `shared` machine is inconclusive: other work held the process's share down."""
     cpu, gpu = admo["process_cpu"], admo["mean_gpu_percent"]
     text = (
@@ -219,8 +225,12 @@ def _unsaturated(admo: dict, benign: dict, cores: int, shared: bool) -> Verdict:
     benign_saturated = (benign["process_cpu"]["mean"] or 0.0) >= SATURATED_PERCENT or (
         b_gpu is not None and b_gpu >= SATURATED_PERCENT
     )
-    cause = verdicts.BUDGET if benign_saturated else verdicts.IMPLEMENTATION
-    return verdicts.refuted(cause, f"{text}: saturated")
+    if benign_saturated:  # measured: the benign run saturates this machine too
+        return verdicts.refuted(verdicts.BUDGET, f"{text}: saturated, and so is the benign run")
+    return verdicts.inconclusive(
+        f"{text}: saturated under ADMO only; the published code's ADMO not profiled for "
+        "saturation: no cause can be named"
+    )
 
 
 def judge_c8(summary: dict) -> tuple[Verdict, str, str, list[Comparison]]:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pimbot import envs
-from pimbot.analysis import plots, verdicts
+from pimbot.analysis import judging, plots, verdicts
 from pimbot.analysis.claims import CLAIM_TEXT, Claim, Comparison
 from pimbot.analysis.document import Context, Section, seeds_text
 from pimbot.analysis.runs import CLEAN, RunRecord, RunTable, condition_key, natural_key
@@ -208,9 +208,7 @@ def c7(runs: list[RunRecord]) -> Claim:
             parts[f"{env} ADMO"] = (
                 verdicts.reproduced(f"{attacked} < {bound:g}")
                 if attacked.mean < bound
-                else verdicts.refuted(
-                    verdicts.IMPLEMENTATION, f"ADMO success {attacked} not < {bound:g}"
-                )
+                else judging.disagreement(f"ADMO success {attacked} not < {bound:g}", None)
             )
     counts = {k: sum(v.kind == k for v in parts.values()) for k in verdicts.KINDS}
     return Claim(
@@ -271,8 +269,9 @@ def baseline_shortfall(runs, env, clean, base) -> verdicts.Verdict:
             verdicts.BUDGET,
             f"clean {base} at our setting; at the original code's settings {max(scores):.2f}",
         )
-    return verdicts.refuted(
-        verdicts.IMPLEMENTATION, f"clean {base} (no run at the original code's settings)"
+    return verdicts.inconclusive(
+        f"clean {base}; no run at the original code's settings and no transfer "
+        "counterfactual that succeeds: no cause can be named"
     )
 
 
