@@ -145,7 +145,7 @@ def test_documented_commands_run_up_to_training(tmp_path, monkeypatch, capsys):
         ("attacks", "epsilon_random", "epsilon_random [policy lever; hooks: act]"),
         ("defenses", "per_giver_cap", "per_giver_cap ["),
         ("envs", "tiny_env", f"{PGG}: Repeated public goods game"),
-        ("learners", "tiny_env", f"on {PGG} (declared by the environment): policy_hidden=(16,)"),
+        ("learners", "tiny_env", f"on {PGG} (declared for this env): policy_hidden=(16,)"),
     ],
 )
 def test_listing_shows_the_plugin(command, plugin, listed, capsys):

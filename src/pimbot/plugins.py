@@ -18,8 +18,7 @@ A plugin that fails is one line naming its file and line: one that cannot be imp
 (`PluginError`), one whose registration breaks its contract (an error that says where,
 `pimbot.contracts.conformance.ContractError`, passed on as it is), and an exception raised
 in a plugin's code later (`failure_line`). Its full traceback is printed only when asked
-for (`debug_enabled`: ``PIMBOT_DEBUG=1``, or the command line's ``--debug``;
-`full_traceback`).
+for (`debug_enabled`: ``PIMBOT_DEBUG=1``; `full_traceback`).
 """
 
 from __future__ import annotations
@@ -197,8 +196,8 @@ def failure_line(error: BaseException) -> str | None:
 
 
 def debug_enabled(flag: bool = False) -> bool:
-    """Whether a failure's full traceback is wanted: `flag` (the command line's
-    ``--debug``) or ``PIMBOT_DEBUG`` set to anything but empty, 0, false or no."""
+    """Whether a failure's full traceback is wanted: `flag` (a caller's own switch) or
+    ``PIMBOT_DEBUG`` set to anything but empty, 0, false or no."""
     return flag or os.environ.get(DEBUG_VAR, "").strip().lower() not in ("", "0", "false", "no")
 
 

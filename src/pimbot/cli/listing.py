@@ -48,7 +48,7 @@ def print_learners() -> int:
             }
             if changed:
                 values = ", ".join(f"{k}={v!r}" for k, v in changed.items())
-                print(f"    on {env_id} (declared by the environment): {values}")
+                print(f"    on {env_id} (declared for this env): {values}")
             env_params = definition.default_env_params(envs.spec(env_id))
             if env_params:
                 values = ", ".join(f"{k}={v!r}" for k, v in env_params.items())

@@ -5,7 +5,7 @@ tyro parses (https://brentyi.github.io/tyro/); when it refuses a command line, i
 report (a box of several lines) is kept from the terminal and `explain` names the problem
 in one line from the command class itself: the option, what it needs and, for a name, the
 allowed values and the closest ones. Only tyro's public API is used (`tyro.cli`, `tyro.conf`
-markers), so any tyro from the pinned version on works the same.
+markers), so any tyro from 1.0 on (pyproject's lower bound) works the same.
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ hook point it lists is overridden, every hook it overrides is listed, no method 
 miss of a hook's name (`observe_` for `observe`: it would never run), and no field a
 compiled program cannot trace (text, a bool, a tuple of text) is a pytree leaf. Its hooks'
 outputs are checked where the rollout and the learners call them, while the program is
-traced (`expect_array`, `expect_like`: shapes are static, so a check costs nothing when the
+traced (`install_checks`, `OutputCheck`: shapes are static, so a check costs nothing when the
 program runs and cannot change a number). An exception inside a plugin's code becomes one
 line naming the plugin's file and line (`plugin_code`, `PluginCodeError`); its full
 traceback stays on the error (`pimbot.plugins.full_traceback`).
