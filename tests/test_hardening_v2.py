@@ -102,3 +102,33 @@ def test_a_tables_csv_is_written_whole(tmp_path):
     write_csv(Table(["a", "b"], [[1, "x|y"]]), path)
     assert path.read_text().splitlines() == ["a,b", "1,x|y"]
     assert [p.name for p in tmp_path.iterdir()] == ["t.csv"]
+
+
+def test_markdown_escapes_what_it_did_not_write():
+    from pimbot.analysis.tables import Table, markdown_lines
+
+    lines = markdown_lines(Table(["env", "param"], [["<img src=x onerror=alert(1)>", "a|b\nc"]]))
+    row = lines[2]
+    assert "<img" not in row and "&lt;img" in row
+    assert row.count(" | ") == 1 and "a\\|b c" in row
+
+
+def test_sigterm_prints_one_line_and_the_run_resumes(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    out = tmp_path / "run"
+    argv = [sys.executable, "-m", "pimbot.cli", "train", "escape_room-v0", "--seeds", "2"]
+    argv += ["--iterations", "200000", "--chunk-iterations", "100", "--quiet", "--out", str(out)]
+    process = subprocess.Popen(argv, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 300
+    while store.load_checkpoint(out) is None and time.monotonic() < deadline:
+        time.sleep(0.5)
+    process.send_signal(signal.SIGTERM)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 143, err
+    assert err.strip().splitlines()[-1] == "pimbot: terminated; rerun the same command to resume"
+    assert store.load_checkpoint(out) is not None
+    assert os.path.exists(out / store.METRICS)

@@ -91,9 +91,17 @@ class Table:
 def markdown_lines(table: Table, level: int = 3) -> list[str]:
     lines = [f"{'#' * level} {table.title}", ""] if table.title else []
     lines += [table.note, ""] if table.note else []
-    lines += ["| " + " | ".join(table.header) + " |", "|" + " --- |" * len(table.header)]
-    lines += ["| " + " | ".join(fmt(c) for c in row) + " |" for row in table.rows]
+    lines += ["| " + " | ".join(map(markdown_cell, table.header)) + " |"]
+    lines += ["|" + " --- |" * len(table.header)]
+    lines += ["| " + " | ".join(markdown_cell(fmt(c)) for c in row) + " |" for row in table.rows]
     return lines + [""]
+
+
+def markdown_cell(text: str) -> str:
+    """`text` as one Markdown table cell: HTML and the cell separator escaped, lines joined
+    (a plugin's env id or parameter is data, never markup; report.html escapes alike)."""
+    text = " ".join(str(text).splitlines())
+    return text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;").replace("|", "\\|")
 
 
 def html_table(table: Table, level: int = 3) -> str:

@@ -22,6 +22,7 @@ and the allowed values and exits with status 2, before anything is written.
 from __future__ import annotations
 
 import dataclasses
+import signal
 import sys
 
 import pimbot
@@ -201,8 +202,19 @@ def run(argv: list[str]) -> int:
     return parsed.command.run(loaded)
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, handled like Ctrl-C: the checkpoint and metrics already written stay
+    consistent (each chunk's are written atomically), so the same command resumes."""
+
+
+def _terminate(signum, frame) -> None:
+    raise Terminated
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
+    if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:  # not inside a host's own handler
+        signal.signal(signal.SIGTERM, _terminate)
     try:
         return run(argv)
     except (UsageError, InvalidParameter, plugins.PluginError) as error:
@@ -210,9 +222,10 @@ def main(argv: list[str] | None = None) -> int:
         if plugins.debug_enabled() and error.__cause__ is not None:
             print(plugins.full_traceback(error), file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("pimbot: interrupted; rerun the same command to resume", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as interrupt:
+        what = "terminated" if isinstance(interrupt, Terminated) else "interrupted"
+        print(f"pimbot: {what}; rerun the same command to resume", file=sys.stderr)
+        return 143 if isinstance(interrupt, Terminated) else 130
     except RuntimeError as error:
         from pimbot.training.runner import Diverged
 
