@@ -132,3 +132,24 @@ def test_sigterm_prints_one_line_and_the_run_resumes(tmp_path):
     assert err.strip().splitlines()[-1] == "pimbot: terminated; rerun the same command to resume"
     assert store.load_checkpoint(out) is not None
     assert os.path.exists(out / store.METRICS)
+
+
+@pytest.mark.parametrize(
+    "uri, expected",
+    [
+        ("http://127.0.0.1:9", "did not answer within 5 s"),
+        ("gopher://example", "unknown scheme 'gopher'"),
+    ],
+)
+def test_an_unreachable_tracking_server_is_refused_at_once_with_nothing_written(
+    tmp_path, capsys, monkeypatch, uri, expected
+):
+    pytest.importorskip("mlflow")
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
+    out = tmp_path / "run"
+    start = time.monotonic()
+    argv = ["train", "escape_room-v0", "--seeds", "2", "--iterations", "100"]
+    code, err = run_cli([*argv, "--log", "mlflow", "--out", str(out)], capsys)
+    assert code == 2 and len(err.splitlines()) == 1 and expected in err, err
+    assert time.monotonic() - start < 60
+    assert not out.exists()

@@ -29,6 +29,8 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
+import socket
+import urllib.parse
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -67,10 +69,45 @@ def parse(values: Iterable[str] | None) -> tuple[str, ...]:
 
 
 def require_clients(backends: Iterable[str]) -> None:
-    """Fails, naming the missing client, unless every backend's client is importable."""
+    """Fails, naming the missing client, unless every backend's client is importable, and
+    (MLflow) unless its tracking server answers within `SERVER_TIMEOUT_S`."""
     for name in backends:
         if importlib.util.find_spec(CLIENTS[name]) is None:
             raise TrackingError(f"log: {name} needs the {CLIENTS[name]} client; {INSTALL_HINT}")
+        if name == "mlflow":
+            check_mlflow_server(os.environ.get("MLFLOW_TRACKING_URI", ""))
+
+
+SERVER_TIMEOUT_S = 5.0
+"""How long the start of a run waits for a tracking server before it refuses the run."""
+
+MLFLOW_SCHEMES = ("file", "http", "https", "databricks", "sqlite", "postgresql", "mysql", "mssql")
+
+
+def check_mlflow_server(uri: str) -> None:
+    """Raises TrackingError (one line) for an MLflow tracking URI of an unknown scheme, or an
+    http(s) server that does not accept a connection within `SERVER_TIMEOUT_S` ("" is the
+    run directory's own file store)."""
+    if not uri:
+        return
+    parsed = urllib.parse.urlparse(uri)
+    scheme = parsed.scheme.split("+")[0]
+    if scheme not in MLFLOW_SCHEMES:
+        raise TrackingError(
+            f"log: MLFLOW_TRACKING_URI {uri[:80]!r}: unknown scheme {parsed.scheme!r}; "
+            f"allowed: {', '.join(MLFLOW_SCHEMES)} (unset it to log into the run directory)"
+        )
+    if scheme not in ("http", "https"):
+        return
+    port = parsed.port or (443 if scheme == "https" else 80)
+    try:
+        socket.create_connection((parsed.hostname, port), timeout=SERVER_TIMEOUT_S).close()
+    except OSError as error:
+        raise TrackingError(
+            f"log: the MLflow server {uri[:80]} did not answer within {SERVER_TIMEOUT_S:g} s "
+            f"({error.strerror or type(error).__name__}); start it, or unset "
+            "MLFLOW_TRACKING_URI to log into the run directory"
+        ) from None
 
 
 def series_name(seed: int, column: str) -> str:
@@ -179,6 +216,9 @@ class MlflowTracker:
         from mlflow.entities import Param
         from mlflow.tracking import MlflowClient
 
+        # a server that stops answering mid-run fails the run in seconds, not after retries
+        os.environ.setdefault("MLFLOW_HTTP_REQUEST_TIMEOUT", "10")
+        os.environ.setdefault("MLFLOW_HTTP_REQUEST_MAX_RETRIES", "1")
         uri = os.environ.get("MLFLOW_TRACKING_URI") or (run_dir / "mlruns").resolve().as_uri()
         if uri.startswith("file:"):  # MLflow 3 keeps its file store behind an opt-in
             os.environ.setdefault("MLFLOW_ALLOW_FILE_STORE", "true")
