@@ -153,3 +153,37 @@ def test_an_unreachable_tracking_server_is_refused_at_once_with_nothing_written(
     assert code == 2 and len(err.splitlines()) == 1 and expected in err, err
     assert time.monotonic() - start < 60
     assert not out.exists()
+
+
+def test_damaged_files_are_named_in_one_line_never_read_as_good(tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    metrics = run / store.METRICS
+    metrics.write_text("iteration,seed,eval/success\n100,0,0.5\n100,1,0.25\n200,0,0.7\n")
+    identity = {"seeds": 2, "iterations": 200, "eval_period": 100}
+    rows = store.read_metrics(run)
+    with pytest.raises(store.DamagedRunDir, match="3 rows, expected 4"):
+        store.check_rows_complete(run, rows, identity)
+    metrics.write_text("iteration,seed,eval/success\n100,0,0.5\n100,1\n")
+    with pytest.raises(store.DamagedRunDir, match="line 3 has the wrong number of cells"):
+        store.read_metrics(run)
+    metrics.write_text("iteration,seed,eval/success\n100,0,half\n")
+    with pytest.raises(store.DamagedRunDir, match="line 2 holds a non-number"):
+        store.read_metrics(run)
+    other = tmp_path / "other.csv"
+    other.write_text("iteration,seed,eval/success\n")
+    metrics.unlink()
+    metrics.symlink_to(other)
+    with pytest.raises(store.DamagedRunDir, match="a symbolic link"):
+        store.read_metrics(run)
+    (run / "summary.json").write_text("[1, 2]")
+    with pytest.raises(store.DamagedRunDir, match="a JSON list, expected an object"):
+        store.read_json(run / "summary.json")
+
+
+def test_a_binary_grid_file_is_one_line(tmp_path, capsys):
+    grid = tmp_path / "grid.toml"
+    grid.write_bytes(bytes(range(256)))
+    code, err = run_cli(["sweep", str(grid), "--out", str(tmp_path / "out")], capsys)
+    assert code == 2 and len(err.splitlines()) == 1 and "not valid TOML" in err, err
+    assert not (tmp_path / "out").exists()

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from pimbot import learners
-from pimbot.analysis.curves import Curves, read_curves
+from pimbot.analysis.curves import Curves, curves_of
 from pimbot.attacks import CONDITION_ORDER
 from pimbot.training import store
 from pimbot.training.summary import summarize
@@ -279,7 +279,9 @@ def load_record(suite_dir: Path, name: str) -> RunRecord:
     config = store.read_json(path / store.CONFIG)
     identity, run = config["identity"], config["run_config"]
     summary = {**store.read_json(path / store.SUMMARY), **summarize(path)}
-    curves = read_curves(path)
+    rows = store.read_metrics(path)
+    store.check_rows_complete(path, rows, identity)  # a damaged run is never read as good
+    curves = curves_of(rows)
     return RunRecord(
         name=name,
         path=path,

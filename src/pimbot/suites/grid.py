@@ -454,6 +454,8 @@ def load(path: str | Path) -> Grid:
         raise GridError(f"grid: cannot read {path}: {error.strerror or error}") from None
     except tomllib.TOMLDecodeError as error:
         raise GridError(f"grid: {path} is not valid TOML: {error}") from None
+    except UnicodeDecodeError:
+        raise GridError(f"grid: {path} is not valid TOML: not UTF-8 text") from None
     return parse(data, default_name=path.stem)
 
 

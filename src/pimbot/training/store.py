@@ -130,13 +130,19 @@ def write_json(path: Path, obj: Any) -> None:
     write_atomic(path, (text + "\n").encode())
 
 
-def read_json(path: Path) -> Any:
-    """The JSON in `path`; DamagedRunDir (one line) if it is not valid JSON."""
+def read_json(path: Path) -> dict[str, Any]:
+    """The JSON object in `path` (every JSON file pimbot writes holds one); DamagedRunDir
+    (one line) if it is not valid JSON or holds something else (a list, a number)."""
     try:
-        return json.loads(Path(path).read_text(encoding="utf-8"))
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as error:
         reason = getattr(error, "msg", None) or "not UTF-8 text"
         raise DamagedRunDir(f"{path}: damaged (not valid JSON: {reason}); {RESTART_HINT}") from None
+    if not isinstance(data, dict):
+        raise DamagedRunDir(
+            f"{path}: damaged (a JSON {type(data).__name__}, expected an object); {RESTART_HINT}"
+        )
+    return data
 
 
 def git_commit() -> str | None:
@@ -337,8 +343,32 @@ def _keep_checkpointed_bytes(run_dir: Path, max_iteration: int) -> bool:
 
 
 def read_metrics(run_dir: Path) -> list[dict[str, str]]:
+    """metrics.csv's rows; DamagedRunDir (one line) for a file that is a symbolic link (it
+    would be another run's) or holds a row cut short, too long or not numeric."""
     path = Path(run_dir) / METRICS
+    if path.is_symlink():
+        raise DamagedRunDir(f"{path}: a symbolic link, not this run's own file; {RESTART_HINT}")
     if not path.exists():
         return []
     with open(path, newline="") as f:
-        return list(csv.DictReader(f))
+        rows = list(csv.DictReader(f))
+    for number, row in enumerate(rows, start=2):
+        if None in row or None in row.values():
+            raise DamagedRunDir(f"{path}: damaged (line {number} has the wrong number of cells)")
+        try:
+            [float(value) for value in row.values()]
+        except ValueError:
+            raise DamagedRunDir(f"{path}: damaged (line {number} holds a non-number)") from None
+    return rows
+
+
+def check_rows_complete(run_dir: Path, rows: list, identity: dict[str, Any]) -> None:
+    """A finished run's metrics.csv holds one row per seed and evaluation; DamagedRunDir
+    (one line) otherwise (rows lost or added after the run finished)."""
+    evaluations = int(identity["iterations"]) // int(identity["eval_period"])
+    expected = int(identity["seeds"]) * evaluations
+    if len(rows) != expected:
+        raise DamagedRunDir(
+            f"{Path(run_dir) / METRICS}: damaged ({len(rows)} rows, expected {expected}: "
+            f"{identity['seeds']} seeds × {evaluations} evaluations); {RESTART_HINT}"
+        )
