@@ -187,3 +187,27 @@ def test_a_binary_grid_file_is_one_line(tmp_path, capsys):
     code, err = run_cli(["sweep", str(grid), "--out", str(tmp_path / "out")], capsys)
     assert code == 2 and len(err.splitlines()) == 1 and "not valid TOML" in err, err
     assert not (tmp_path / "out").exists()
+
+
+def test_profile_widths_and_robot_json_are_checked_before_work(tmp_path, capsys):
+    code, err = run_cli(
+        [
+            "profile",
+            "--env",
+            "escape_room-v0",
+            "--hidden",
+            "100000000",
+            "--out",
+            str(tmp_path / "p"),
+        ],
+        capsys,
+    )
+    assert code == 2 and "hidden[0]: must be an integer in [1, 65536]" in err
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    code, err = run_cli(
+        ["robot", "eval", str(tmp_path), "--episodes", "1", "--json", str(blocker / "s.json")],
+        capsys,
+    )
+    assert code == 2 and len(err.splitlines()) == 1
+    assert "is not a directory" in err or "not a pimbot run directory" in err

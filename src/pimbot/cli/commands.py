@@ -35,6 +35,11 @@ TRACKERS = ("tensorboard", "wandb", "mlflow")
 """`pimbot.training.tracking.BACKENDS` (that module imports JAX)."""
 
 
+MAX_PROFILED_WIDTH = 2**16
+"""The largest hidden layer (and update period) `pimbot profile` takes: 65 536 units already
+make a controller of gigabytes; a larger number is a typo that would exhaust memory."""
+
+
 @dataclasses.dataclass(frozen=True)
 class Registered:
     """Marks an option whose values are names in one of pimbot's registries."""
@@ -288,7 +293,7 @@ class Profile(Command):
                 if not values:
                     raise InvalidParameter(f"{name}: give at least one value")
                 for i, value in enumerate(values):
-                    check_int(f"{name}[{i}]", value, 1)
+                    check_int(f"{name}[{i}]", value, 1, MAX_PROFILED_WIDTH)
 
     def run(self, plugins: tuple[str, ...]) -> int:
         from pimbot.cli import handlers

@@ -55,6 +55,10 @@ def cmd_eval(args) -> int:
     from pimbot.robot import evaluate
     from pimbot.training import store
 
+    if args.json:  # before the evaluation, not after it
+        from pimbot.cli.handlers import check_writable
+
+        check_writable("json", Path(args.json), directory=False)
     overrides = evaluate.parse_physics_overrides(list(args.physics))
     if args.nominal_room:
         overrides["randomize_layout"] = False
@@ -85,6 +89,7 @@ def cmd_eval(args) -> int:
         path = rosbag.write_bag(result.recorded, args.rosbag)
         print(f"wrote ROS 2 bag {path}")
     if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)  # checked creatable above
         store.write_json(Path(args.json), summary)
         print(f"wrote {args.json}")
     return 0
