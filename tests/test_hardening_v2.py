@@ -211,3 +211,14 @@ def test_profile_widths_and_robot_json_are_checked_before_work(tmp_path, capsys)
     )
     assert code == 2 and len(err.splitlines()) == 1
     assert "is not a directory" in err or "not a pimbot run directory" in err
+
+
+def test_a_sweep_too_big_for_memory_is_refused_before_its_index_is_written(tmp_path, capsys):
+    grid = tmp_path / "big.toml"
+    grid.write_text(
+        'name = "big"\nseeds = 100000000\niterations = 200\neval_period = 100\n'
+        '[[envs]]\nid = "escape_room-v0"\n[[learners]]\nname = "lio"\n'
+    )
+    code, err = run_cli(["sweep", str(grid), "--out", str(tmp_path / "out"), "--quiet"], capsys)
+    assert code == 2 and len(err.splitlines()) == 1 and "100000000 seeds need" in err, err
+    assert not (tmp_path / "out").exists()

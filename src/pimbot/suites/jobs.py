@@ -77,15 +77,18 @@ def _clear(path: Path) -> None:
 
 
 def train_status(path: Path, spec) -> str:
+    from pimbot.training import memory
     from pimbot.training.config import resolve
     from pimbot.training.runner import RunDirConflict, check_run_dir
 
+    resolved = resolve(spec)
     try:
-        check_run_dir(path, resolve(spec))
+        check_run_dir(path, resolved)
     except RunDirConflict as error:
         raise JobConflict(str(error)) from None
     if (path / store.SUMMARY).exists():
         return "finished"
+    memory.check_fits(resolved)  # before the sweep writes its index or any run
     return "partial" if (path / store.CHECKPOINT_DIR).exists() else "pending"
 
 

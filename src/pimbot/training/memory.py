@@ -57,7 +57,7 @@ def check_fits(resolved: ResolvedRun, available: int | None = None) -> None:
             f"eval_episodes: {resolved.eval_episodes} evaluation episodes × "
             f"{resolved.run.seeds} seeds need at least {evaluation / 2**30:.1f} GiB for their "
             f"observations alone, more than the {available / 2**30:.1f} GiB available; "
-            "use fewer evaluation episodes"
+            "use fewer seeds or evaluation episodes"
         )
     needed = state_bytes(resolved)
     if needed > available:
