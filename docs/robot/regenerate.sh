@@ -15,4 +15,6 @@ python -m pimbot.robot.results "$RUNS" "$OUT/er_harsh_k10" --episodes 10 \
   decision_time_limit=15 --table docs/robot/robot_harsh.md
 pimbot robot render "$RUNS/er42_clean" --seed-index 0 --episode 1 \
   --out docs/robot/er42_clean.gif --frame docs/robot/er42_clean_frame.png
+pimbot robot render "$RUNS/er21_bypass" --seed-index 0 --episode 0 \
+  --out "$OUT/er21_bypass.gif" --frame docs/screenshots/robot_frame_er21_bypass.png
 python benchmarks/robot_physics.py --runs-dir "$RUNS" --json docs/robot/robot_physics.json
