@@ -121,7 +121,7 @@ def test_sigterm_prints_one_line_and_the_run_resumes(tmp_path):
 
     out = tmp_path / "run"
     argv = [sys.executable, "-m", "pimbot.cli", "train", "escape_room-v0", "--seeds", "2"]
-    argv += ["--iterations", "200000", "--chunk-iterations", "100", "--quiet", "--out", str(out)]
+    argv += ["--iterations", "20000000", "--chunk-iterations", "100", "--quiet", "--out", str(out)]
     process = subprocess.Popen(argv, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 300
     while store.load_checkpoint(out) is None and time.monotonic() < deadline:

@@ -101,7 +101,9 @@ def markdown_cell(text: str) -> str:
     """`text` as one Markdown table cell: HTML and the cell separator escaped, lines joined
     (a plugin's env id or parameter is data, never markup; report.html escapes alike)."""
     text = " ".join(str(text).splitlines())
-    return text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;").replace("|", "\\|")
+    text = re.sub(r"&(?=#?\w+;)", "&amp;", text)  # what would read as an entity
+    text = re.sub(r"<(?=[A-Za-z/!?])", "&lt;", text)  # what would open a tag ("0.2 < 0.8" stays)
+    return text.replace("|", "\\|")
 
 
 def html_table(table: Table, level: int = 3) -> str:

@@ -51,14 +51,6 @@ def check_fits(resolved: ResolvedRun, available: int | None = None) -> None:
     """Raises InvalidParameter when the evaluation's observations or the learner state alone
     need more than `available` bytes."""
     available = available_bytes() if available is None else available
-    evaluation = evaluation_bytes(resolved)
-    if evaluation > available:
-        raise InvalidParameter(
-            f"eval_episodes: {resolved.eval_episodes} evaluation episodes × "
-            f"{resolved.run.seeds} seeds need at least {evaluation / 2**30:.1f} GiB for their "
-            f"observations alone, more than the {available / 2**30:.1f} GiB available; "
-            "use fewer seeds or evaluation episodes"
-        )
     needed = state_bytes(resolved)
     if needed > available:
         params = ", ".join(f"{k}={v}" for k, v in resolved.run.env_params) or "defaults"
@@ -67,4 +59,12 @@ def check_fits(resolved: ResolvedRun, available: int | None = None) -> None:
             f"least {needed / 2**30:.1f} GiB for the learner state alone, more than the "
             f"{available / 2**30:.1f} GiB available; use fewer agents, seeds or smaller "
             "networks"
+        )
+    evaluation = evaluation_bytes(resolved)
+    if evaluation > available:
+        raise InvalidParameter(
+            f"eval_episodes: {resolved.eval_episodes} evaluation episodes × "
+            f"{resolved.run.seeds} seeds need at least {evaluation / 2**30:.1f} GiB for their "
+            f"observations alone, more than the {available / 2**30:.1f} GiB available; "
+            "use fewer seeds or evaluation episodes"
         )
