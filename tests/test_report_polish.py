@@ -235,8 +235,8 @@ def test_counts_and_iterations_text():
 
 
 def test_every_run_is_read_once_into_the_run_table(suite, tmp_path, monkeypatch):
-    """metrics.csv is read by the run table (and by `summarize`, which recomputes the
-    summary from it), never again by a section or a figure."""
+    """metrics.csv is read once, by the run table (which also recomputes the summary from
+    those rows), never again by a section or a figure."""
     from collections import Counter
 
     from pimbot.training import store
@@ -251,8 +251,8 @@ def test_every_run_is_read_once_into_the_run_table(suite, tmp_path, monkeypatch)
     monkeypatch.setattr(store, "read_metrics", counted)
     report.write_report(suite, tmp_path / "report")
     mine = {path: n for path, n in reads.items() if suite.resolve() in path.parents}
-    assert len(mine) == 4 and set(mine.values()) == {2}, mine  # curves + summarize
-    assert max(reads.values()) == 2  # the original code's packaged logs too
+    assert len(mine) == 4 and set(mine.values()) == {1}, mine
+    assert max(reads.values()) == 1  # the original code's packaged logs too
 
 
 def test_legends_sit_outside_the_axes_and_say_what_the_bands_are(suite, tmp_path, monkeypatch):

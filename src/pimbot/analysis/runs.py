@@ -1,5 +1,5 @@
 """The runs of a suite directory, loaded once: one `RunRecord` per training run (its
-config.json, its summary recomputed from metrics.csv by `training.summary.summarize`, and
+config.json, its summary recomputed from metrics.csv's rows (`training.summary.summarize_rows`), and
 metrics.csv itself read into `Curves`) and the summaries of the robot and profile jobs, in
 one `RunTable`.
 
@@ -27,7 +27,7 @@ from pimbot import learners
 from pimbot.analysis.curves import Curves, curves_of
 from pimbot.attacks import CONDITION_ORDER
 from pimbot.training import store
-from pimbot.training.summary import summarize
+from pimbot.training.summary import summarize_rows
 
 CLEAN = "clean"
 NO_DEFENSE = "none"
@@ -278,9 +278,9 @@ def load_record(suite_dir: Path, name: str) -> RunRecord:
     path = Path(suite_dir) / name
     config = store.read_json(path / store.CONFIG)
     identity, run = config["identity"], config["run_config"]
-    summary = {**store.read_json(path / store.SUMMARY), **summarize(path)}
     rows = store.read_metrics(path)
     store.check_rows_complete(path, rows, identity)  # a damaged run is never read as good
+    summary = {**store.read_json(path / store.SUMMARY), **summarize_rows(rows, config)}
     curves = curves_of(rows)
     return RunRecord(
         name=name,

@@ -62,10 +62,13 @@ def final_value(values: np.ndarray, window: int = FINAL_WINDOW) -> float:
 
 def summarize(run_dir: str | Path) -> dict[str, Any]:
     """Final metrics (mean of the last evaluation points, per seed and their mean) and
-    convergence, from files."""
+    convergence, from the run directory's files."""
     run_dir = Path(run_dir)
-    rows = store.read_metrics(run_dir)
-    config = store.read_json(run_dir / store.CONFIG)
+    return summarize_rows(store.read_metrics(run_dir), store.read_json(run_dir / store.CONFIG))
+
+
+def summarize_rows(rows: list[dict[str, str]], config: dict[str, Any]) -> dict[str, Any]:
+    """`summarize` of metrics.csv's rows and config.json's contents, already read."""
     seeds = sorted({int(r["seed"]) for r in rows})
     by_seed = {s: [r for r in rows if int(r["seed"]) == s] for s in seeds}
     columns = [c for c in rows[0] if c.startswith("eval/")] if rows else []
