@@ -222,3 +222,26 @@ def test_a_sweep_too_big_for_memory_is_refused_before_its_index_is_written(tmp_p
     code, err = run_cli(["sweep", str(grid), "--out", str(tmp_path / "out"), "--quiet"], capsys)
     assert code == 2 and len(err.splitlines()) == 1 and "100000000 seeds need" in err, err
     assert not (tmp_path / "out").exists()
+
+
+def test_state_files_are_never_written_through_a_link_at_the_old_temporary_names(tmp_path):
+    """The channel's replay state, the audit log's head and a rendered video are staged
+    under fresh names (a link at the names they once used is left alone)."""
+    import numpy as np
+
+    from pimbot.defenses import audit, channel
+    from pimbot.robot import render
+
+    target = tmp_path / "target.txt"
+    target.write_text("keep")
+    state, log, video = tmp_path / "state.json", tmp_path / "audit.log", tmp_path / "ep.gif"
+    for planted in ("state.json.tmp", "audit.log.head.tmp", "ep.tmp.gif"):
+        (tmp_path / planted).symlink_to(target)
+    keys = channel.KeyRing({(0, 1): b"k" * 32})
+    receiver = channel.Receiver(1, keys, state_path=state)
+    assert receiver.receive(channel.Sender(0, keys).send(1, 0, 0, 1.0)).accepted
+    audit.AuditLog(log, b"a" * 32).append("incentive", value=1.0)
+    render.write_video([np.zeros((4, 4, 3), np.uint8)] * 2, video, fps=2)
+    assert target.read_text() == "keep"
+    assert state.is_file() and audit.head_path(log).is_file() and video.is_file()
+    assert not list(tmp_path.glob(".*"))  # no staged file left behind

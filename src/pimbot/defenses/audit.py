@@ -38,6 +38,8 @@ import stat
 from pathlib import Path
 from typing import Any
 
+from pimbot.atomic_files import write_atomic
+
 VERSION = 2
 KEY_BYTES = 32
 MIN_KEY_BYTES = 16
@@ -240,9 +242,7 @@ class AuditLog:
             head = {"v": VERSION, "records": self.count, "last": self.last_hash}
             head["key"] = self.key_id
             head["mac"] = head_mac(self.key, head)
-            staged = self.path.with_name(self.path.name + ".head.tmp")
-            staged.write_text(json.dumps(head, sort_keys=True) + "\n")
-            os.replace(staged, head_path(self.path))
+            write_atomic(head_path(self.path), (json.dumps(head, sort_keys=True) + "\n").encode())
         except OSError as error:
             raise AuditError(f"audit log {self.path}: {error.strerror}") from None
         return record

@@ -36,11 +36,12 @@ import hashlib
 import hmac
 import json
 import math
-import os
 import re
 import secrets
 from pathlib import Path
 from typing import Any
+
+from pimbot.atomic_files import write_atomic
 
 KEY_BYTES = 32
 MIN_KEY_BYTES = 16
@@ -238,12 +239,7 @@ class Receiver:
                 **body,
                 "mac": _state_mac(self.keyring.key(giver, self.recipient), body),
             }
-        staged = path.with_name(path.name + ".tmp")
-        with staged.open("w") as f:
-            json.dump({"v": 1, "peers": peers}, f, sort_keys=True)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(staged, path)
+        write_atomic(path, json.dumps({"v": 1, "peers": peers}, sort_keys=True).encode())
 
     def _load(self, path: Path) -> dict[int, _PeerState]:
         def refuse(why: str) -> ValueError:

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pimbot.atomic_files import staged
 from pimbot.robot.episode import GATE_OPEN_FRACTION, EpisodeResult
 from pimbot.robot.world import (
     DOOR_GAP,
@@ -369,23 +370,22 @@ def _draw_headline(fig, title: str, line: str, colour: str) -> None:
 def write_video(frames: list[np.ndarray], out: Path, fps: int) -> None:
     """GIF via Pillow, MP4 via ffmpeg (H.264, yuv420p)."""
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.stem + ".tmp" + out.suffix)
-    if out.suffix.lower() == ".gif":
-        from PIL import Image
+    with staged(out) as tmp:
+        if out.suffix.lower() == ".gif":
+            from PIL import Image
 
-        images = [Image.fromarray(f) for f in frames]
-        images[0].save(
-            tmp, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0
-        )
-    else:
-        height, width = frames[0].shape[:2]
-        command = [
-            "ffmpeg", "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24",
-            "-s", f"{width}x{height}", "-r", str(fps), "-i", "-", "-vf",
-            "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-pix_fmt", "yuv420p", "-f", "mp4", str(tmp),
-        ]  # fmt: skip
-        subprocess.run(command, input=b"".join(f.tobytes() for f in frames), check=True)
-    os.replace(tmp, out)
+            images = [Image.fromarray(f) for f in frames]
+            images[0].save(
+                tmp, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0
+            )
+        else:
+            height, width = frames[0].shape[:2]
+            command = [
+                "ffmpeg", "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24",
+                "-s", f"{width}x{height}", "-r", str(fps), "-i", "-", "-vf",
+                "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-pix_fmt", "yuv420p", "-f", "mp4", str(tmp),
+            ]  # fmt: skip
+            subprocess.run(command, input=b"".join(f.tobytes() for f in frames), check=True)
 
 
 def write_png(frame: np.ndarray, out: Path) -> None:

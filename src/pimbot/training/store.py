@@ -22,11 +22,11 @@ import math
 import os
 import shutil
 import subprocess
-import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from pimbot.atomic_files import write_atomic
 from pimbot.envs.core import InvalidParameter
 
 CONFIG = "config.json"
@@ -79,23 +79,6 @@ def clear_run(run_dir: Path) -> None:
     for name in (CHECKPOINT_DIR, "tensorboard"):
         if (run_dir / name).is_dir():
             shutil.rmtree(run_dir / name)
-
-
-def write_atomic(path: Path, data: bytes) -> None:
-    """Writes `data` to `path` so that readers see the old or the new file, never a mix:
-    through a temporary file created exclusively in the same directory (never a file or
-    link already there), renamed over `path` (a link at `path` is replaced, its target
-    left alone)."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def check_inside(root: Path, names: tuple[str, ...]) -> None:
