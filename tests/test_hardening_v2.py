@@ -245,3 +245,14 @@ def test_state_files_are_never_written_through_a_link_at_the_old_temporary_names
     assert target.read_text() == "keep"
     assert state.is_file() and audit.head_path(log).is_file() and video.is_file()
     assert not list(tmp_path.glob(".*"))  # no staged file left behind
+
+
+def test_a_failed_jobs_error_is_the_error_not_a_note_added_to_it():
+    """index.json records a failed job's error: JAX's note on its filtered traceback
+    (added after the message) is not the error."""
+    from pimbot.suites import sweep
+
+    error = ValueError("hook emit returned shape (3,), expected (3, 3)\nmore detail")
+    error.add_note("For simplicity, JAX has removed its internal frames from the traceback")
+    assert sweep._one_line(error) == "ValueError: hook emit returned shape (3,), expected (3, 3)"
+    assert sweep._one_line(KeyError()) == "KeyError"

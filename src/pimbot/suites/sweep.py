@@ -25,7 +25,6 @@ import os
 import sys
 import threading
 import time
-import traceback
 from collections.abc import Iterable
 from concurrent import futures
 from pathlib import Path
@@ -564,8 +563,10 @@ def input_statuses(task: tuple[Job, ...], selected: set[str], ledger: Ledger) ->
 
 
 def _one_line(error: BaseException) -> str:
-    text = "".join(traceback.format_exception_only(type(error), error)).strip()
-    return text.splitlines()[-1] if text else type(error).__name__
+    """`Type: message`, the message's first line: the error itself, never a note added to
+    it (JAX appends one on how it filtered the traceback) or a later line of detail."""
+    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
+    return f"{type(error).__name__}: {lines[0]}" if lines else type(error).__name__
 
 
 def _version() -> str:
