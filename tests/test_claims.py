@@ -9,7 +9,6 @@ nothing is trained): they test the rules, not any measured figure.
 from __future__ import annotations
 
 import csv
-import dataclasses
 import json
 from pathlib import Path
 
@@ -20,7 +19,7 @@ from scipy import stats
 from pimbot import statistics
 from pimbot.analysis import claims, judging, runs, verdicts
 from pimbot.analysis.claims import Claim
-from pimbot.analysis.sections import attack_claims, reciprocators, stag_hunt
+from pimbot.analysis.sections import attack_claims, reciprocators
 from pimbot.analysis.tables import difference, estimate
 
 ER = "escape_room-v0"
@@ -219,47 +218,128 @@ def test_c3_structural_parts_and_evidence(tmp_path):
     assert "the env's rules forbid success" in claim.judged.reason and "0.300" in claim.measured
 
 
-def test_c4_at_the_paper_budget_and_the_late_rise(tmp_path):
-    def reverse(name, params, curve, horizon):
+EXPLORING = {"epsilon_decay_iters": 1000}
+"""LIO's exploration schedule as config.json records it: the early window of C2 and C4."""
+
+
+def falling(early: float, then, after=None):
+    """A success curve: `early` during the exploration period, `then` (a function of the
+    seed, or a value) up to 25k, `after` (default `then`) later."""
+
+    def curve(s, t):
+        late = then if after is None or t <= 25_000 else after
+        value = early if t <= 1000 else late
+        return {"eval/success": value(s) if callable(value) else value}
+
+    return curve
+
+
+def test_c4_at_the_paper_budget_with_the_later_run_as_a_note(tmp_path):
+    def reverse(name, params, curve, horizon=25_000, source=None, attack_params=None):
         return write_run(
             tmp_path,
-            f"attacks/{name}",
+            f"{'original' if source else 'attacks'}/{name}",
             curve,
             env_params=params,
             attack="reverse",
+            attack_params=attack_params,
             horizon=horizon,
-            period=1000,
+            period=500,
+            learner_config=EXPLORING,
+            source=source,
         )
 
-    late = reverse(
-        "er21", er(2, 1), lambda s, t: {"eval/success": 0.0 if t <= 25_000 else 0.5}, 50_000
-    )
+    late = reverse("er21", er(2, 1), falling(0.5, 0.0, 0.5), 50_000)
     rest = [
-        reverse("er42", er(4, 2), const(**{"eval/success": 1.0}), 25_000),
-        reverse("er43", er(4, 3), const(**{"eval/success": 0.0}), 25_000),
+        reverse("er42", er(4, 2), const(**{"eval/success": 1.0})),
+        reverse("er43", er(4, 3), falling(0.3, 0.0)),
     ]
-    main, longer = attack_claims.c4(data_of([late, *rest]))
-    assert main.judged.kind == verdicts.AT_BUDGET
-    assert longer.id == "C4b" and longer.judged.causes == (verdicts.BUDGET,)
-    assert "+0.500" in longer.judged.reason
+    claim = attack_claims.c4(data_of([late, *rest]))
+    assert claim.id == "C4" and claim.judged.kind == verdicts.REPRODUCED, claim.judged
+    assert "note (not judged" in claim.measured and "+0.500" in claim.measured
+    assert "sign-flip permutation" in claim.rule and "≤ 0.05" not in claim.rule
     short = reverse("er21_short", er(2, 1), const(**{"eval/success": 0.3}), 10_000)
-    main = attack_claims.c4(data_of([short, *rest]))[0]
+    main = attack_claims.c4(data_of([short, *rest]))
     assert main.judged.kind == verdicts.INCONCLUSIVE and "10,000 it" in main.judged.reason
+    # ER(4,3) solved by our seeds, not by the logs at the same settings: a named difference.
+    solved = reverse("er43_solved", er(4, 3), falling(0.3, 1.0))
+    logs = reverse("er43_logs", er(4, 3), falling(0.3, 0.0), source=runs.ORIGINAL_CODE)
+    other = reverse(
+        "er43_other", er(4, 3), falling(0.3, 0.0), source=runs.ORIGINAL_CODE,
+        attack_params={"adversary": 1},
+    )  # fmt: skip
+    records = [late, rest[0], solved]
+    table = runs.RunTable(tuple(records), (logs,))
+    data = attack_claims.Runs(table, {(r.env, r.condition): r for r in records})
+    judged = attack_claims.c4(data).judged
+    assert judged.causes == (verdicts.IMPLEMENTATION,) and "p = 0.00" in judged.reason
+    # Logs of the same attack under other parameters are named, never compared.
+    table = runs.RunTable(tuple(records), (other,))
+    data = attack_claims.Runs(table, {(r.env, r.condition): r for r in records})
+    judged = attack_claims.c4(data).judged
+    assert judged.kind == verdicts.INCONCLUSIVE and "adversary 1 in the original" in judged.reason
 
 
-def test_c1b_speed_by_both_criteria_at_equal_horizon(tmp_path):
-    def run(name, condition, params, at, seeds=5):
-        attack = None if condition == "clean" else "self_centered"
-        curve = lambda s, t: {"eval/return_ratio": 1.0 if t >= at else 0.0}  # noqa: E731
+def test_c2_at_the_codes_c_and_the_papers_c(tmp_path):
+    def fake(name, params, curve, amount, source=None):
         return write_run(
             tmp_path,
-            f"attacks/{name}",
+            f"{'original' if source else 'attacks'}/{name}",
+            curve,
+            env_params=params,
+            attack="fake_incentive",
+            attack_params={"amount": amount},
+            horizon=25_000,
+            period=500,
+            learner_config=EXPLORING,
+            source=source,
+        )
+
+    rooms = (("21", er(2, 1)), ("42", er(4, 2)), ("43", er(4, 3)))
+    code = [fake(f"er{n}", p, falling(0.4, 0.0), 10.0) for n, p in rooms]
+    paper = [fake(f"er{n}_c50", p, falling(0.0, 0.0), 50.0) for n, p in rooms]
+    logs = [fake(f"log{n}", p, falling(0.3, 0.0), 10.0, runs.ORIGINAL_CODE) for n, p in rooms]
+    records = [*code, *paper]
+    table = runs.RunTable(tuple(records), tuple(logs))
+    main, second = attack_claims.c2(attack_claims.Runs(table, {(r.name, ""): r for r in records}))
+    assert (main.id, second.id, main.jobs_of, second.jobs_of) == ("C2", "C2 (C = 50)", "C2", "C2")
+    assert main.judged.kind == verdicts.REPRODUCED, main.judged
+    assert "exploration period" in main.rule and "0.1" not in main.rule
+    # No early success at C = 50; the logs are at C = 10: named, not compared.
+    assert second.judged.kind == verdicts.INCONCLUSIVE
+    assert "amount 10 in the original code's logs, 50 here" in second.judged.reason
+    assert all("not compared" in n.original for n in second.numbers)
+    # At C = 10, ours without early success against logs with it: a named difference.
+    flat = [fake(f"flat{n}", p, falling(0.0, 0.0), 10.0) for n, p in rooms]
+    table = runs.RunTable(tuple(flat), tuple(logs))
+    (main,) = attack_claims.c2(attack_claims.Runs(table, {(r.name, ""): r for r in flat}))
+    assert main.judged.causes == (verdicts.IMPLEMENTATION,), main.judged
+    # Without any log: no cause.
+    (alone,) = attack_claims.c2(attack_claims.Runs(runs.RunTable(tuple(flat)), {
+        (r.name, ""): r for r in flat}))  # fmt: skip
+    assert alone.judged.kind == verdicts.INCONCLUSIVE and "no original-code log" in (
+        alone.judged.reason
+    )
+
+
+def test_c1b_speed_by_a_rank_test_at_equal_horizon(tmp_path):
+    def run(name, condition, params, at, seeds=5, source=None):
+        attack = None if condition == "clean" else "self_centered"
+
+        def curve(s, t):
+            step = at(s) if callable(at) else at
+            return {"eval/return_ratio": 1.0 if t >= step else 0.0}
+
+        return write_run(
+            tmp_path,
+            f"{'original' if source else 'attacks'}/{name}",
             curve,
             env_params=params,
             attack=attack,
             seeds=seeds,
             horizon=30_000,
             period=500,
+            source=source,
         )
 
     fast = [
@@ -269,7 +349,8 @@ def test_c1b_speed_by_both_criteria_at_equal_horizon(tmp_path):
         run("d", "self", er(4, 2), 10_500),
     ]
     claim = attack_claims.c1b(data_of(fast))
-    assert claim.judged.kind == verdicts.REPRODUCED
+    assert claim.judged.kind == verdicts.REPRODUCED, claim.judged
+    assert "Mann–Whitney" in claim.rule and "Mann–Whitney p = 0.004 earlier" in claim.measured
     # Smoothed over 10 evaluations, a step at 20k (12.5k) first reaches 0.9 nine points later.
     first = next(n for n in claim.numbers if n.quantity.startswith("ER(2,1)"))
     assert (first.paper, first.pimbot, first.horizon) == (
@@ -282,6 +363,23 @@ def test_c1b_speed_by_both_criteria_at_equal_horizon(tmp_path):
     assert slower.kind == verdicts.INCONCLUSIVE and "no original-code log" in slower.reason
     few = [run("g", "clean", er(2, 1), 10_000, 3), run("h", "self", er(2, 1), 15_000, 3)]
     assert attack_claims.c1b(data_of(few + fast[2:])).judged.kind == verdicts.INCONCLUSIVE
+    # Overlapping seeds cannot be told apart: inconclusive, the logs named beside them.
+    mixed = [
+        run("i", "clean", er(4, 2), lambda s: 5_000 + 1_000 * s),
+        run("j", "self", er(4, 2), lambda s: 5_500 + 1_000 * s),
+    ]
+    logs = (
+        run("k", "clean", er(4, 2), 7_000, 4, runs.ORIGINAL_CODE),
+        run("l", "self", er(4, 2), 5_000, 4, runs.ORIGINAL_CODE),
+    )
+    records = [*fast[:2], *mixed]
+    table = runs.RunTable(tuple(records), logs)
+    data = attack_claims.Runs(table, {(r.env, r.condition): r for r in records})
+    claim = attack_claims.c1b(data)
+    assert claim.judged.kind == verdicts.INCONCLUSIVE and "cannot tell" in claim.judged.reason
+    assert "the original code's logs: 4+4 logs at 30,000 it" in claim.judged.reason
+    row = next(n for n in claim.numbers if n.quantity.startswith("ER(4,2)"))
+    assert row.original == "11.0k → 9.0k (4+4 logs)"
 
 
 # --- C5, C6, C7 ---------------------------------------------------------------------------
@@ -309,43 +407,16 @@ def test_c5_margin_against_the_symmetric_baseline_and_own_exit_success(tmp_path)
             run(f"s{n}{m}", "admo", er(n, m), 3.0, 0.9, 0.9),
             run(f"d{n}{m}", "admo", er(n, m), 0.0, 0.5, 0.1, "disrupt"),
         ]
-    claim = attack_claims.c5(data_of(records))
+    data = data_of(records)
+    claim = attack_claims.c5(data)
     assert claim.judged.kind == verdicts.REPRODUCED, claim.judged
     # Disrupt is judged only where the task is non-redundant (not in ER(4,2)).
     assert "ER(4,2) admo_disrupt disrupts" not in claim.measured
     assert "ER(4,3) admo_disrupt disrupts" in claim.measured
     assert "admo_code (the published code's scheduler): no runs" in claim.measured
-
-
-def test_c6_the_code_metric_as_the_cause(tmp_path):
-    code = "eval/return_over_stag_payoff/agent_0"
-
-    def run(name, attack, success, captures, metric):
-        def curve(s, t):
-            return {
-                "eval/success": success * t / 5000,
-                "eval/stag_captures": captures * t / 5000,
-                code: metric,
-            }
-
-        return write_run(
-            tmp_path,
-            f"stag_hunt/{name}",
-            curve,
-            env_id="stag_hunt-v0",
-            env_params={"n_players": 2},
-            attack=attack,
-            horizon=5000,
-            period=100,
-            attack_params={"mode": "disrupt"} if attack else None,
-        )
-
-    parts, _ = stag_hunt.judge_env(
-        "SH(2)", run("c", None, 0.6, 0.3, 0.6), run("a", "admo", 0.4, 0.1, 0.02)
-    )
-    assert parts["SH(2) success rises"].kind == verdicts.REPRODUCED
-    assert parts["SH(2) stag captures rise"].kind == verdicts.REPRODUCED
-    assert parts["SH(2) ADMO → 0"].causes == (verdicts.PAPER_METRIC,)
+    parts = attack_claims.admo_parts(data, "admo")[0]
+    assert not any("steps" in name for name in parts) and "measured, not judged" in claim.measured
+    assert "sign-flip permutation" in claim.judged.reason and "25" not in claim.rule
 
 
 def test_c7_er_shortfall_classified_by_the_transfer_counterfactual(tmp_path):
@@ -367,12 +438,24 @@ def test_c7_er_shortfall_classified_by_the_transfer_counterfactual(tmp_path):
         )
 
     base = [run("clean", 0.2), run("admo", 0.05, attack="admo")]
-    short = reciprocators.c7(base).judged  # no run at the code's settings: no cause
-    assert short.kind == verdicts.INCONCLUSIVE and "no run at the original code's" in short.reason
+    short = reciprocators.c7(base).judged  # no original-code log: no cause
+    assert short.kind == verdicts.INCONCLUSIVE and "log no success" in short.reason
     transfer = run("transfer", 0.95, env_id="escape_room_transfer-v0")
     assert reciprocators.c7([*base, transfer]).judged.causes == (verdicts.PAPER_ENVIRONMENT,)
-    code = run("code", 0.1, config={"lr": 1e-4, "gamma": 0.99, "grudge": "accumulated"})
-    assert reciprocators.c7([*base, code]).judged.causes == (verdicts.PAPER_CODE,)
+    # another balance solving the paper's room: the environment is not the cause
+    spec = run("spec", 0.95, config={"grudge": "accumulated"})
+    judged = reciprocators.c7([*base, transfer, spec]).judged
+    assert judged.kind == verdicts.INCONCLUSIVE and "with the spec balance" in judged.reason
+    # Each setting is its own part, never the best of several: the defaults solving the
+    # room do not outvote the code's batch of one, which without a log is inconclusive.
+    code = {"lr": 1e-4, "gamma": 0.99, "reciprocal_weight": 5.0, "grudge": "petty"}
+    solved = [run("solved", 0.95), run("solved_admo", 0.05, attack="admo")]
+    assert reciprocators.c7(solved).judged.kind == verdicts.REPRODUCED
+    batch = run("code_e1", 0.04, config=code | {"num_envs": 1})
+    judged = reciprocators.c7([*solved, batch])
+    assert judged.judged.kind == verdicts.INCONCLUSIVE and not judged.judged.causes
+    assert "ER(4,2) baseline, the original code's batch of one" in judged.judged.reason
+    assert "0.95" not in judged.judged.reason  # the reproduced part does not decide it
 
 
 def test_claims_table_at_the_quick_budget():
@@ -400,14 +483,23 @@ def test_claims_table_at_the_quick_budget():
 
 def test_original_code_rows_at_the_common_horizon(tmp_path):
     """The original code's log and pimbot's run are read by the same metric code, both cut
-    at the horizon they share; the original's own attack parameters are named."""
+    at the horizon they share; a log of the same attack at other parameters is named in
+    the row and never compared."""
 
     def curve(s, t):
         return {"eval/success": 1.0 if t <= 5000 else 0.0}
 
-    ours = write_run(
-        tmp_path, "attacks/er42_fake", curve, env_params=er(4, 2), attack="fake_incentive"
-    )
+    def ours_at(name, amount):
+        return write_run(
+            tmp_path,
+            f"attacks/{name}",
+            curve,
+            env_params=er(4, 2),
+            attack="fake_incentive",
+            attack_params={"amount": amount},
+        )
+
+    ours, c50 = ours_at("er42_fake", 10.0), ours_at("er42_fake50", 50.0)
     log = write_run(
         tmp_path,
         "original/er42_bignum",
@@ -419,16 +511,36 @@ def test_original_code_rows_at_the_common_horizon(tmp_path):
         seeds=2,
         source=runs.ORIGINAL_CODE,
     )
-    log = dataclasses.replace(log, condition="fake_incentive(amount=10)")  # as its config says
-    table = runs.RunTable((ours,), (log,))
+    table = runs.RunTable((ours, c50), (log,))
     assert runs.load_table(tmp_path).original[0].source == runs.ORIGINAL_CODE
+    assert table.original_for(ours) is log and table.original_for(c50) is None
+    assert table.originals_elsewhere(c50) == [log]
     data = attack_claims.Runs(table, {(ours.env, ours.condition): ours})
     row, value = data.compare("q", "~0", ours, "eval/success")
     assert row.horizon == "5,000 it" and row.pimbot.startswith("1.000")
-    assert row.original.startswith("0.500") and "(fake_incentive(amount=10))" in row.original
+    assert row.original.startswith("0.500") and "2 distinct logs" in row.original
     assert value.mean == 0.5
+    row, value = data.compare("q", "~0", c50, "eval/success")
+    assert value is None and row.horizon == "10,000 it"
+    assert row.original.startswith("not compared") and "amount 10" in row.original
     # Without a log: pimbot at its own horizon, "no log" in the table.
     row, value = attack_claims.Runs(runs.RunTable((ours,)), {}).compare(
         "q", "~0", ours, "eval/success"
     )
     assert (row.horizon, row.original, value) == ("10,000 it", None, None)
+
+
+def test_direction_tests_over_seeds():
+    """The tests that replace thresholds: a sign-flip permutation test against 0, a rank
+    test of iterations with "never" as +∞, and the fall to ≈ 0 from the early success."""
+    assert statistics.sign_p_value(np.full(5, 3.0)) == pytest.approx(1 / 32)
+    assert statistics.sign_p_value(np.zeros(5)) == 1.0
+    assert statistics.rank_p_value([1, 1, 1], [2, 2, 2], "less") == pytest.approx(0.05)
+    assert statistics.rank_p_value([np.inf] * 3, [1, 2, 3], "greater") == pytest.approx(0.05)
+    assert judging.earlier([None] * 4, [1, 2, 3, 4])[1] < judging.DIFFERS_P
+    res = 0.01
+    assert judging.falls_to_zero(np.full(5, 0.4), np.zeros(5), res).kind == verdicts.REPRODUCED
+    assert judging.falls_to_zero(np.full(5, 0.4), np.full(5, 0.3), res) is None  # not ≈ 0
+    assert judging.falls_to_zero(np.zeros(3), np.zeros(3), res).kind == verdicts.INCONCLUSIVE
+    assert judging.above_zero(np.full(5, -1.0), "margin") is None
+    assert judging.above_zero(np.array([-1.0, 1.0, 0.5]), "m").kind == verdicts.INCONCLUSIVE

@@ -418,17 +418,19 @@ HIGH = [60, 62, 58, 61, 59, 63]
 
 
 def test_c8_verdicts_from_the_numbers():
+    """C8 is judged on "bursty" and "no sustained saturation"; the overhead is a
+    measurement with its interval whatever its size (the paper gives none)."""
     from pimbot.analysis.sections.device import judge_c8
 
     assert judge_c8(_summary(LOW))[0].kind == verdicts.REPRODUCED
-    refuted = judge_c8(_summary(HIGH))[0]
-    assert refuted.kind == verdicts.REFUTED and refuted.causes == (verdicts.BUDGET,)
-    assert "2.0x a benign" in refuted.reason  # ADMO's update 4 ms vs 2 ms
-    dearer = judge_c8(_summary(HIGH, slowest_percent=40.0))[0]
-    # Still dear at the slowest cadence, the published code's ADMO not profiled: no cause.
-    assert dearer.kind == verdicts.INCONCLUSIVE and not dearer.causes
-    assert "published code's ADMO not profiled" in dearer.reason
-    assert judge_c8(_summary([0, 50, 10, 40, 20, 30]))[0].kind == verdicts.INCONCLUSIVE
+    dear, measured, short, numbers = judge_c8(_summary(HIGH))
+    assert dear.kind == verdicts.REPRODUCED  # ADMO's update 4 ms vs 2 ms: bursty
+    assert "2.0x a benign" in measured and "+60.5" in measured and "(measured)" in short
+    assert numbers[0].paper == "modest (no size given)" and numbers[1].pimbot == "100 %"
+    spread = _summary(HIGH)  # ADMO's decisions, not its updates, carry the extra time
+    spread["admo"]["cadences"]["10"]["amortized_ms"] = 3.0
+    smooth = judge_c8(spread)[0]
+    assert smooth.kind == verdicts.INCONCLUSIVE and "decisions carry most" in smooth.reason
     saturated = judge_c8(_summary(LOW, cpu_mean=95.0))[0]
     assert saturated.kind == verdicts.INCONCLUSIVE  # ADMO alone saturates: no cause shown
     assert "saturated under ADMO only" in saturated.reason and "no cause" in saturated.reason
@@ -440,7 +442,7 @@ def test_c8_verdicts_from_the_numbers():
     assert missing.kind == verdicts.INCONCLUSIVE and "not profiled" in missing.reason
 
 
-def test_c8_refuted_where_only_the_papers_admo_is_dear_points_at_its_code():
+def test_c8_shows_the_published_codes_admo_beside_ours():
     from pimbot.analysis.sections.device import judge_c8
 
     summary = _summary(HIGH)
@@ -448,9 +450,7 @@ def test_c8_refuted_where_only_the_papers_admo_is_dear_points_at_its_code():
         "cadences": {"10": {"per_round_percent": LOW, "per_round_cpu_percent": LOW}}
     }
     verdict, measured, _, _ = judge_c8(summary)
-    assert verdict.causes == (verdicts.PAPER_CODE,) and "published code's ADMO" in measured
-    summary["comparison_admo_code"]["cadences"]["10"]["per_round_percent"] = HIGH
-    assert judge_c8(summary)[0].causes == (verdicts.BUDGET,)
+    assert not verdict.causes and "the published code's ADMO +6.5" in measured
 
 
 def test_c8_on_a_shared_machine_is_judged_on_cpu_time():
@@ -459,16 +459,16 @@ def test_c8_on_a_shared_machine_is_judged_on_cpu_time():
     from pimbot.analysis.sections.device import judge_c8
 
     verdict, measured, short, _ = judge_c8(_summary(LOW, other_load=1.5, per_round_cpu=HIGH))
-    assert verdict.kind == verdicts.REFUTED and "CPU time" in verdict.reason
-    assert "saturation" not in verdict.reason  # inconclusive there: the share was held down
-    held = judge_c8(_summary(LOW, other_load=1.5))[0]
-    assert held.kind == verdicts.INCONCLUSIVE and "machine was shared" in held.reason
+    assert verdict.kind == verdicts.INCONCLUSIVE and "machine was shared" in verdict.reason
+    assert "+60.5" in measured and "CPU time" in measured  # the CPU-time overhead shown
     assert "1.5 cores of other work" in measured and "CPU time" in short
     quiet = judge_c8(_summary(LOW, other_load=0.2, per_round_cpu=HIGH))[0]
-    assert quiet.kind == verdicts.REPRODUCED and "wall-clock" in quiet.reason
+    assert quiet.kind == verdicts.REPRODUCED
+    _, measured, _, _ = judge_c8(_summary(LOW, other_load=0.2, per_round_cpu=HIGH))
+    assert "wall-clock time) +6.5" in measured
     unsampled = _summary(LOW, other_load=1.5, per_round_cpu=HIGH)  # segments under a sample
     for name in ("benign", "admo"):
         unsampled[name]["cadences"]["10"]["other_load_cores"] = None
-    assert "CPU time" in judge_c8(unsampled)[0].reason  # the whole steady state's load
+    assert "CPU time" in judge_c8(unsampled)[1]  # the whole steady state's load
     with_gpu = judge_c8(_summary(LOW, other_load=1.5, per_round_cpu=HIGH, gpu=10.0))[0]
     assert with_gpu.kind == verdicts.INCONCLUSIVE and "GPU" in with_gpu.reason

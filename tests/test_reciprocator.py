@@ -155,9 +155,17 @@ def test_balance_recursion_on_a_hand_computed_sequence():
     np.testing.assert_allclose(grudges[:, 0, 1], [0.0, 2.0, 1.0])
     # Agent 0: 0, 0·0, 2·3; agent 1: 0, 1·2, 0·1.
     np.testing.assert_allclose(rewards, [[0.0, 0.0], [0.0, 2.0], [6.0, 0.0]])
+    # The petty balance (credit only): agent 0 about agent 1: B = 0, 2, 1 + 1 = 2; agent 1
+    # about agent 0: B = 1, 0.5, 0.25 + 3 = 3.25.
+    petty, rewards = influence.balance_and_reciprocal_reward(voi, 0.5, grudge="petty")
+    np.testing.assert_allclose(petty[:, 0, 1], [0.0, 2.0, 2.0])
+    np.testing.assert_allclose(petty[:, 1, 0], [1.0, 0.5, 3.25])
+    # Agent 0: 0, 0·0, 2·3; agent 1: 0, 1·2, 0.5·1.
+    np.testing.assert_allclose(rewards, [[0.0, 0.0], [0.0, 2.0], [6.0, 0.5]])
 
 
-def test_balance_recursion_matches_a_loop_reference_for_three_agents():
+@pytest.mark.parametrize("grudge", influence.GRUDGES)
+def test_balance_recursion_matches_a_loop_reference_for_three_agents(grudge):
     rng = np.random.default_rng(0)
     voi = rng.normal(size=(6, 3, 3)).astype(np.float32)
     voi[:, range(3), range(3)] = 0.0
@@ -170,9 +178,15 @@ def test_balance_recursion_matches_a_loop_reference_for_three_agents():
             expected[t, i] = np.mean([balance[i, j] * voi[t, i, j] for j in others])
         for i in range(3):
             for j in range(3):
-                if i != j:
-                    balance[i, j] = gamma * balance[i, j] + voi[t, j, i] - voi[t, i, j]
-    _, rewards = influence.balance_and_reciprocal_reward(jnp.asarray(voi), gamma)
+                if i == j:
+                    continue
+                credit, debit = voi[t, j, i], voi[t, i, j]
+                balance[i, j] = {
+                    "accumulated": gamma * balance[i, j] + credit - debit,
+                    "petty": gamma * balance[i, j] + credit,
+                    "one_step": credit,
+                }[grudge]
+    _, rewards = influence.balance_and_reciprocal_reward(jnp.asarray(voi), gamma, grudge)
     np.testing.assert_allclose(rewards, expected, rtol=1e-5, atol=1e-6)
 
 
@@ -302,9 +316,22 @@ def test_default_configs():
     )
     matrix_hunt = learners.default_config("reciprocator", "stag_hunt_matrix-v0")
     assert (matrix_hunt.voi, matrix_hunt.reciprocal_weight) == ("exact", 1.0)
-    for env_id in ("escape_room-v0", "stag_hunt-v0"):
-        grid = learners.default_config("reciprocator", env_id)
-        assert (grid.voi, grid.grudge, grid.reciprocal_weight) == ("learned", "accumulated", 1.0)
+    hunt = learners.default_config("reciprocator", "stag_hunt-v0")
+    assert (hunt.voi, hunt.grudge, hunt.reciprocal_weight) == ("learned", "accumulated", 1.0)
+    # Escape Room: greedy_agent reciprocators/run_er.py's learner settings at 128 episodes
+    # per update; NL the same with weight 0.
+    for env_id in ("escape_room-v0", "escape_room_transfer-v0"):
+        for learner, weight in (("reciprocator", 5.0), ("nl", 0.0)):
+            room = learners.default_config(learner, env_id)
+            assert (room.voi, room.grudge, room.reciprocal_weight) == ("learned", "petty", weight)
+            assert (room.lr, room.gamma, room.ppo_epochs, room.clip) == (1e-4, 0.99, 10, 0.1)
+            assert (room.entropy_coef, room.policy_hidden, room.voi_lr) == (0.01, (64, 64), 1e-3)
+            assert room.num_envs == 128
+    # every room: the env parameters do not change the declared defaults
+    run = resolve(
+        RunConfig("escape_room-v0", (("min_at_lever", 3), ("n_agents", 4)), "reciprocator")
+    )
+    assert (run.learner_config.grudge, run.learner_config.lr) == ("petty", 1e-4)
     nl = learners.default_config("nl", "ipd-v0")
     assert (nl.reciprocal_weight, nl.voi) == (0.0, "exact")
 
@@ -330,7 +357,9 @@ def test_ipd_runs_of_the_reciprocator_default_to_the_originals_32_step_episodes(
 def test_bad_options_are_refused():
     with pytest.raises(InvalidParameter, match="voi: must be one of learned, exact"):
         reciprocator.init(jax.random.PRNGKey(0), IPD, dataclasses.replace(SMALL, voi="tabular"))
-    with pytest.raises(InvalidParameter, match="grudge: must be one of accumulated, one_step"):
+    with pytest.raises(
+        InvalidParameter, match="grudge: must be one of accumulated, petty, one_step"
+    ):
         reciprocator.init(jax.random.PRNGKey(0), IPD, dataclasses.replace(SMALL, grudge="x"))
     room = envs.make("escape_room-v0")
     with pytest.raises(InvalidParameter, match="voi: 'exact' needs a matrix game"):

@@ -187,6 +187,7 @@ def test_condition_order_is_the_built_in_attacks_in_registration_order():
         "admo_disrupt",
         "admo_code_stealthy",
         "admo_code_disrupt",
+        "negated_env_reward",
     )
     built_in = [
         n for n in attacks.registered() if attacks.attack_class(n).__module__.startswith("pimbot.")

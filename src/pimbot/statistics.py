@@ -11,6 +11,11 @@ seeds; below that a bootstrap interval means little, so the range of the seeds
 resamples the two runs' seeds independently (different runs' seeds are not paired);
 below the threshold its range is the span of all pairwise differences.
 
+Where a claim's rule is a direction rather than an interval, the tests are here too: a
+permutation test of two runs' means (`difference_p_value`), a sign-flip permutation test
+of one run's mean against 0 (`sign_p_value`) and a Mann–Whitney U test of per-seed
+iterations, "never" counted as +∞ (`rank_p_value`).
+
 Samples whose values are all equal have a zero-width interval (BCa is undefined on
 degenerate data); where BCa cannot be computed on other data (its acceleration has no
 value) the percentile bootstrap of the same resamples is used.
@@ -109,9 +114,10 @@ def difference_interval(a, b, seed: int = 0) -> Interval:
     return Interval(*_bootstrap((a, b), _mean_difference, RESAMPLES, seed), CI, n)
 
 
-def difference_p_value(a, b, seed: int = 0) -> float:
-    """Two-sided permutation p-value of mean(a) − mean(b) (`scipy.stats.permutation_test`,
-    independent samples; exact where the pooled sample has at most RESAMPLES splits).
+def difference_p_value(a, b, seed: int = 0, alternative: str = "two-sided") -> float:
+    """Permutation p-value of mean(a) − mean(b) (`scipy.stats.permutation_test`,
+    independent samples; exact where the pooled sample has at most RESAMPLES splits);
+    two-sided, or "greater" / "less" for mean(a) above / below mean(b).
 
     Unlike a bootstrap interval it stays meaningful for a handful of runs where one side
     has no spread, e.g. 10 seeds of which 2 solve a task against 5 logs of which none do
@@ -125,7 +131,52 @@ def difference_p_value(a, b, seed: int = 0) -> float:
         (a, b),
         _mean_difference,
         permutation_type="independent",
-        alternative="two-sided",
+        alternative=alternative,
+        n_resamples=RESAMPLES,
+        vectorized=True,
+        rng=np.random.default_rng(seed),
+    )
+    return float(result.pvalue)
+
+
+RANK_ASYMPTOTIC_SEEDS = 20
+"""From this many seeds per side a rank test uses the normal approximation (permutations of
+40 + 40 seeds take a second per test)."""
+
+
+def rank_p_value(a, b, alternative: str = "two-sided") -> float:
+    """Mann–Whitney U p-value of `a` against `b` (`scipy.stats.mannwhitneyu`, independent
+    samples; "less": `a` tends to be smaller), its null distribution by permutation (exact
+    where the splits are at most RESAMPLES) below RANK_ASYMPTOTIC_SEEDS per side: ties,
+    which the normal approximation mistreats at a few seeds, are common here. +∞ is a
+    value like any other, so a seed that never reached a point (its iteration +∞) ranks
+    above every seed that did."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    if a.size == 0 or b.size == 0:
+        raise ValueError("rank_p_value: no samples")
+    if np.all(np.concatenate([a, b]) == a[0]):
+        return 1.0
+    method = (
+        "asymptotic"  # with its tie correction, close to the permutation's at this size
+        if min(a.size, b.size) >= RANK_ASYMPTOTIC_SEEDS
+        else stats.PermutationMethod(n_resamples=RESAMPLES, rng=np.random.default_rng(0))
+    )
+    return float(stats.mannwhitneyu(a, b, alternative=alternative, method=method).pvalue)
+
+
+def sign_p_value(x, alternative: str = "greater", seed: int = 0) -> float:
+    """Permutation p-value of mean(x) against 0 (`scipy.stats.permutation_test` flipping the
+    sign of each value; exact where 2^n ≤ RESAMPLES); "greater": the mean is above 0."""
+    x = np.asarray(x, dtype=float)
+    if x.size == 0:
+        raise ValueError("sign_p_value: no samples")
+    if not np.any(x):
+        return 1.0
+    result = stats.permutation_test(
+        (x,),
+        _mean,
+        permutation_type="samples",
+        alternative=alternative,
         n_resamples=RESAMPLES,
         vectorized=True,
         rng=np.random.default_rng(seed),

@@ -19,7 +19,7 @@ from pimbot.suites import presets
 
 CLAIM_TEXT = {
     "C1": "self-centered: adversary above the others; ER converges faster",
-    "C2": "fake incentive (C = 50): success collapses to ~0 in ER",
+    "C2": "fake incentive (C = 10, the code; C = 50, the paper): early success, then ~0 in ER",
     "C3": "bypass: 0 success in ER(2,1), ER(4,3); ER(4,2) still solved",
     "C4": "reverse: success → 0 except ER(4,2)",
     "C5": "ADMO vs LIO: adversary's reward and success measures elevated in ER",

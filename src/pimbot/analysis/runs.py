@@ -23,7 +23,6 @@ from typing import Any
 
 import numpy as np
 
-from pimbot import learners
 from pimbot.analysis.curves import Curves, curves_of
 from pimbot.attacks import CONDITION_ORDER
 from pimbot.training import store
@@ -122,28 +121,37 @@ class RunTable:
     profile: dict[str, Any] | None = None
     """The paired profile's summary.json (None: no finished profile)."""
 
-    def original_for(
-        self,
-        env: str,
-        condition: str,
-        learner: str = learners.DEFAULT_LEARNER,
-        horizon: int | None = None,
-        attack: str | None = None,
-    ) -> RunRecord | None:
-        """The original code's run of one env label and learner with this condition (or, if
-        none, with the same `attack` under other parameters: its 10-per-step fake incentive);
-        of several, the shortest that reaches `horizon`, else the longest, then the most
-        seeds (comparisons are made at the common horizon)."""
-        mine = [r for r in self.original if r.env == env and r.learner == learner]
-        matches = [r for r in mine if r.condition == condition]
-        if not matches and attack is not None:
-            matches = [r for r in mine if r.attack == attack]
+    def original_for(self, run: RunRecord, horizon: int | None = None) -> RunRecord | None:
+        """The original code's run at `run`'s settings: the same env (id and every
+        parameter), learner and learner configuration, attack and resolved attack
+        parameters. Nothing else stands in for it: a log of the same attack under other
+        parameters is no evidence about this run (`originals_elsewhere` names those). Of
+        several, the shortest that reaches `horizon`, else the longest, then the most seeds
+        (comparisons are made at the common horizon)."""
+        matches = self.originals_for(run)
         if not matches:
             return None
         reach = [r for r in matches if horizon is not None and r.iterations >= horizon]
         if reach:
             return min(reach, key=lambda r: (r.iterations, -r.seeds))
         return max(matches, key=lambda r: (r.iterations, r.seeds))
+
+    def originals_for(self, run: RunRecord) -> list[RunRecord]:
+        """Every original-code run at `run`'s exact settings (`same_settings`)."""
+        return [r for r in self.original if same_settings(r, run)]
+
+    def originals_elsewhere(self, run: RunRecord) -> list[RunRecord]:
+        """The original code's runs of `run`'s env, learner and attack at other settings
+        (attack parameters or learner configuration): never compared with `run`, only
+        named (`settings_difference`)."""
+        return [
+            r
+            for r in self.original
+            if r.env_key == run.env_key
+            and r.learner == run.learner
+            and r.attack == run.attack
+            and not same_settings(r, run)
+        ]
 
     def group(self, name: str) -> list[RunRecord]:
         return [r for r in self.records if r.group == name]
@@ -167,6 +175,36 @@ class RunTable:
             ),
             None,
         )
+
+
+def same_settings(a: RunRecord, b: RunRecord) -> bool:
+    """Whether two runs share env (id and parameters), learner, learner configuration,
+    attack and resolved attack parameters: what makes one evidence about the other."""
+    keys = ("learner_config", "attack", "attack_params")
+    return (
+        a.env_key == b.env_key
+        and a.learner == b.learner
+        and all(a.identity.get(k) == b.identity.get(k) for k in keys)
+    )
+
+
+def settings_difference(original: RunRecord, ours: RunRecord) -> str:
+    """ "amount 10 in the original code's logs, 50 here": every attack parameter and
+    learner setting in which two runs of one attack differ."""
+    parts = []
+    for key in ("attack_params", "learner_config"):
+        a, b = original.identity.get(key) or {}, ours.identity.get(key) or {}
+        for name in sorted(set(a) | set(b)):
+            if a.get(name) != b.get(name):
+                parts.append(
+                    f"{name} {_shown(a.get(name))} in the original code's logs, "
+                    f"{_shown(b.get(name))} here"
+                )
+    return "; ".join(parts) or "other settings"
+
+
+def _shown(value: Any) -> str:
+    return "unset" if value is None else _value(value)
 
 
 # --- labels ----------------------------------------------------------------------------

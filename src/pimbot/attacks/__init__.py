@@ -1,5 +1,6 @@
 """Manipulations of one agent (docs/attacks.md): strategy attacks, ADMO and the
-published code's ADMO (`admo_code`), by name.
+published code's ADMO (`admo_code`) and its Stag Hunt ADMO (`negated_env_reward`),
+by name.
 
 `make(name, num_agents, **params)` builds a validated attack config;
 `register(cls)` adds a user's attack (the built-ins register the same way);
@@ -13,12 +14,13 @@ from typing import Any
 from pimbot.attacks.admo import ADMO
 from pimbot.attacks.admo import MODES as ADMO_MODES
 from pimbot.attacks.admo_code import ADMOCode
+from pimbot.attacks.negated_env_reward import NegatedEnvReward
 from pimbot.attacks.strategies import Bypass, FakeIncentive, Reverse, SelfCentered
 from pimbot.contracts import attack as contract
 from pimbot.contracts.attack import NO_ATTACK, Attack, register
 from pimbot.envs.core import InvalidParameter
 
-for _cls in (SelfCentered, FakeIncentive, Bypass, Reverse, ADMO, ADMOCode):
+for _cls in (SelfCentered, FakeIncentive, Bypass, Reverse, ADMO, ADMOCode, NegatedEnvReward):
     register(_cls, replace=True)
 
 
@@ -76,6 +78,7 @@ __all__ = [
     "Attack",
     "Bypass",
     "FakeIncentive",
+    "NegatedEnvReward",
     "Reverse",
     "SelfCentered",
     "make",

@@ -48,6 +48,24 @@ _PG_IPD_COLUMN = {
 }
 # The Reciprocator's base is its IPD config (w = 5); elsewhere w = 1.
 _RECIPROCATOR_W1 = {"reciprocal_weight": 1.0}
+# The Reciprocator on Escape Room (every room): the learner settings of the PIMbot code's
+# Escape Room script (greedy_agent `reciprocators/run_er.py`: PPO lr 1e-4, γ 0.99, K 10,
+# clip 0.1, entropy 0.01, 64 hidden, w 5, reciprocal reward 'linear' = the credit-only
+# `petty_rr` of johnlyzhou/reciprocator `src/agents/reciprocator.py`, VoI lr 1e-3) at 128
+# episodes per update; the script's one episode per update collapses (`num_envs=1` keeps
+# it; docs/deviations.md#reciprocators). NL takes the same with weight 0.
+_RECIPROCATOR_ESCAPE_ROOM = {
+    "lr": 1e-4,
+    "gamma": 0.99,
+    "ppo_epochs": 10,
+    "clip": 0.1,
+    "entropy_coef": 0.01,
+    "policy_hidden": (64, 64),
+    "reciprocal_weight": 5.0,
+    "grudge": "petty",
+    "voi_lr": 1e-3,
+    "num_envs": 128,
+}
 # The Reciprocator on matrix games: the original's IPD agent (exact VoI against the others'
 # action frequencies of the last batch, refreshed every 3 updates; one-step grudge; width-2
 # policy and value networks; 2048 parallel games per update). w stays 5 on the IPD.
@@ -100,8 +118,8 @@ for _definition in (
         reciprocator.acting,
         attack_hooks=_NO_CHANNEL_HOOKS,
         env_defaults={
-            "escape_room-v0": _RECIPROCATOR_W1,
-            "escape_room_transfer-v0": _RECIPROCATOR_W1,
+            "escape_room-v0": _RECIPROCATOR_ESCAPE_ROOM,
+            "escape_room_transfer-v0": _RECIPROCATOR_ESCAPE_ROOM,
             "ipd-v0": _RECIPROCATOR_MATRIX,
             "stag_hunt-v0": _RECIPROCATOR_W1,
             "stag_hunt_matrix-v0": _RECIPROCATOR_MATRIX | _RECIPROCATOR_W1,

@@ -180,9 +180,20 @@ def value_of_influence(
     return voi * (1.0 - jnp.eye(num_agents, dtype=voi.dtype))
 
 
-GRUDGES = ("accumulated", "one_step")
-"""Balance variants: the general agent's accumulated credit − debit, or the original IPD
+GRUDGES = ("accumulated", "petty", "one_step")
+"""Balance variants: the general agent's accumulated credit − debit, the credit-only "petty"
+balance (the original's `petty_rr`, its Escape Room script's 'linear'), or the original IPD
 agent's one-step grudge."""
+
+
+def next_balance(balance: jax.Array, voi_t: jax.Array, gamma: float, grudge: str) -> jax.Array:
+    """B_t [N self, N other] from B_{t−1} and VoI(j→i, t) [N j, N i] (`voi_t.T[i, j]` is the
+    credit VoI(j→i), `voi_t[i, j]` the debit VoI(i→j))."""
+    if grudge == "one_step":
+        return voi_t.T
+    if grudge == "petty":
+        return gamma * balance + voi_t.T
+    return gamma * balance + voi_t.T - voi_t
 
 
 def balance_and_reciprocal_reward(
@@ -191,6 +202,9 @@ def balance_and_reciprocal_reward(
     """The influence balance per pair and the reciprocal reward, along one episode.
 
     grudge "accumulated": B_t[i, j] = γ B_{t−1}[i, j] + VoI(j→i, t) − VoI(i→j, t), B_{−1} = 0;
+    grudge "petty" (credit only; johnlyzhou/reciprocator `src/agents/reciprocator.py`,
+    `petty_rr`, which greedy_agent's `reciprocators/run_er.py` selects as 'linear'):
+    B_t[i, j] = γ B_{t−1}[i, j] + VoI(j→i, t), no debit;
     grudge "one_step" (the original code's IPD agent): B_t[i, j] = VoI(j→i, t), no
     accumulation and no debit for the influence i exerted;
     reciprocal_t[i] = mean_{j≠i} B_{t−1}[i, j] · VoI(i→j, t).
@@ -204,7 +218,7 @@ def balance_and_reciprocal_reward(
 
     def body(balance, voi_t):
         reward = jnp.sum(balance * voi_t, axis=1) / (num_agents - 1)
-        balance = voi_t.T if grudge == "one_step" else gamma * balance + voi_t.T - voi_t
+        balance = next_balance(balance, voi_t, gamma, grudge)
         return balance, (balance, reward)
 
     start = jnp.zeros((num_agents, num_agents), voi.dtype)

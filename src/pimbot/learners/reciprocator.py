@@ -7,16 +7,20 @@ One iteration, per seed and for all agents at once (docs/reciprocators.md):
      (`voi="learned"`, `influence.py`) or, on matrix games, the others' action
      frequencies per state for the exact VoI (`voi="exact"`, `exact_voi.py`);
   3. VoI of every ordered pair on every step, the influence balance per pair
-     (`grudge="accumulated"`: γ-discounted credit − debit; `"one_step"`: the
-     other's influence on the previous step only, the original's IPD agent),
-     and each agent's reciprocal reward mean_j B_{t−1}·VoI(self→j, t);
+     (`grudge="accumulated"`: γ-discounted credit − debit; `"petty"`: γ-discounted
+     credit only, the original's `petty_rr`; `"one_step"`: the other's influence on
+     the previous step only, the original's IPD agent), and each agent's reciprocal
+     reward mean_j B_{t−1}·VoI(self→j, t);
   4. PPO (clip, entropy bonus, `ppo_epochs` full-batch Adam epochs) on the
      Monte-Carlo return of env + w·reciprocal reward, normalized per batch per
      agent; advantage = normalized return − V̂(o).
 No reward moves between agents: a Reciprocator shapes others only by acting.
 Matrix games declare the original's IPD agent as their default (exact VoI,
 one-step grudge, width-2 networks, 2048 games, refit every 3 on the last batch);
-gridworlds use the learned VoI with the accumulated balance.
+gridworlds use the learned VoI: Escape Room with the PIMbot code's Escape Room script's
+learner settings (greedy_agent `reciprocators/run_er.py`: lr 1e-4, γ 0.99, entropy 0.01,
+w 5, the petty balance, VoI lr 1e-3) at 128 episodes per update, the Stag Hunt gridworld
+with the accumulated balance.
 
 Attacks act through the adversary's actions (bypass), its learning reward
 (self-centered: it learns from env reward only, i.e. it is a naive learner),
@@ -61,7 +65,8 @@ from pimbot.learners.pg import act_fn, evaluate_actor
 class ReciprocatorConfig:
     """Reciprocator hyperparameters. The base is the general (learned-VoI) agent with the
     original IPD's PPO settings; matrix games declare the original's IPD agent at their
-    registration, other environments w = 1."""
+    registration, Escape Room the original Escape Room script's settings, the Stag Hunt
+    gridworld w = 1."""
 
     reciprocal_weight: float = 5.0
     """w: weight of the reciprocal reward added to the env reward (0 = naive learner)."""
@@ -104,8 +109,9 @@ class ReciprocatorConfig:
     against the others' empirical action frequencies per state; reward term only)."""
     grudge: str = "accumulated"
     """The balance B_{t−1} that scales the reciprocal reward: "accumulated" (γ B + VoI(j→self)
-    − VoI(self→j), the general agent) or "one_step" (VoI(j→self, t−1) only: no accumulation,
-    no debit, the original's IPD agent)."""
+    − VoI(self→j), the general agent), "petty" (γ B + VoI(j→self): credit only, the
+    original's `petty_rr`, its Escape Room script's 'linear') or "one_step" (VoI(j→self, t−1)
+    only: no accumulation, no debit, the original's IPD agent)."""
     voi_rewards: str = "env"
     """What an agent's VoI on the others, in its reciprocal reward, is measured in: "env"
     (their env rewards) or "after_earlier_agents" (an agent j < i counts with the weighted

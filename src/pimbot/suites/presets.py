@@ -86,7 +86,8 @@ ATTACK_SETTINGS = (
 ATTACK_CONDITIONS: dict[str, tuple[str | None, tuple[tuple[str, Any], ...]]] = {
     "clean": (None, ()),
     "self_centered": ("self_centered", ()),
-    "fake_incentive": ("fake_incentive", ()),
+    "fake_incentive": ("fake_incentive", (("amount", 10.0),)),
+    "fake_incentive_c50": ("fake_incentive", (("amount", 50.0),)),
     "bypass": ("bypass", ()),
     "reverse": ("reverse", ()),
     "admo_stealthy": ("admo", (("mode", "stealthy"),)),
@@ -95,7 +96,11 @@ ATTACK_CONDITIONS: dict[str, tuple[str | None, tuple[tuple[str, Any], ...]]] = {
     "admo_code_disrupt": ("admo_code", (("mode", "disrupt"),)),
 }
 """Run conditions by label; `admo_code_*` is the published code's ADMO (extra ordinary
-steps), `admo_*` the paper's (attacks/admo_code.py)."""
+steps), `admo_*` the paper's (attacks/admo_code.py). `fake_incentive` gives the original
+code's 10 per step per recipient (greedy_agent, lio/alg/lio_agent_greedy.py `give_reward`; its
+logs were made at it), `fake_incentive_c50` the paper's text's C = 50 (Escape Room only)."""
+ER_ONLY_CONDITIONS = ("fake_incentive_c50",)
+"""Conditions of C2, a claim about Escape Room: not run on the IPD."""
 
 ADMO_CODE_CONDITIONS = ("admo_code_disrupt", "admo_code_stealthy")
 QUICK_ADMO_CODE_CONDITIONS = ("admo_code_disrupt",)
@@ -181,13 +186,23 @@ def admo_code_grid(setting: Setting, conditions: tuple[str, ...], scale: Scale) 
     )
 
 
+NOISE_LIMITED = ("er42_clean", "er42_self_centered", "er43_clean", "er43_reverse")
+NOISE_LIMITED += ("er43_admo_stealthy",)
+"""Attack jobs whose claim parts the paper's 10 seeds cannot decide (C1b ER(4,2)'s first
+crossing, C4 ER(4,3), C5 ER(4,3)'s stealthy margin): `NOISE_LIMITED_SEEDS` at full scale."""
+NOISE_LIMITED_SEEDS = 40
+"""Seeds 0..39: the first 10 are the paper's 10 (a run's seeds do not depend on the batch)."""
+
+
 def attack_jobs(scale: Scale) -> list[Job]:
     """C1–C5: clean LIO and every attack on ER(2,1), ER(4,2), ER(4,3) and the 2-player IPD;
-    for C5 also the published code's ADMO (`admo_code`) beside the paper's."""
+    for C5 also the published code's ADMO (`admo_code`) beside the paper's; at full scale
+    the noise-limited jobs run `NOISE_LIMITED_SEEDS` seeds."""
     claims = {
         "clean": ("C1", "C2", "C3", "C4", "C5"),
         "self_centered": ("C1",),
         "fake_incentive": ("C2",),
+        "fake_incentive_c50": ("C2",),
         "bypass": ("C3",),
         "reverse": ("C4",),
         "admo_stealthy": ("C5",),
@@ -197,17 +212,38 @@ def attack_jobs(scale: Scale) -> list[Job]:
     }
     code = ADMO_CODE_CONDITIONS if scale.full_matrices else QUICK_ADMO_CODE_CONDITIONS
     cells = grid.expand_cells(paper_grid("attacks", ATTACK_SETTINGS, PAPER_CONDITIONS, scale))
+    cells = [
+        c
+        for c in cells
+        if c.attack.label not in ER_ONLY_CONDITIONS or c.job.spec.env_id == "escape_room-v0"
+    ]
     for setting in ATTACK_SETTINGS:
         cells += grid.expand_cells(admo_code_grid(setting, code, scale))
-    return [dataclasses.replace(c.job, claims=claims[c.attack.label]) for c in cells]
+    return [
+        dataclasses.replace(c.job, claims=claims[c.attack.label], spec=_seeds(c.job, scale))
+        for c in cells
+    ]
+
+
+def _seeds(job: Job, scale: Scale):
+    """`job`'s run config, with `NOISE_LIMITED_SEEDS` seeds where the full suite needs them."""
+    name = job.name.split("/", 1)[1]
+    if scale.name != FULL.name or name not in NOISE_LIMITED:
+        return job.spec
+    return dataclasses.replace(job.spec, seeds=NOISE_LIMITED_SEEDS)
+
+
+STAG_HUNT_CODE_ADMO = grid.AttackEntry("negated_env_reward", (), label="negated_env_reward")
+"""The published code's Stag Hunt ADMO: the adversary learns on its env reward negated
+(attacks/negated_env_reward.py); a Stag Hunt condition only, not one of the attack grid's."""
 
 
 def stag_hunt_jobs(scale: Scale) -> list[Job]:
-    """C6: LIO baseline vs ADMO (disrupt) on the Stag Hunt gridworld, N = 2, 3, 4."""
-    jobs = grid.expand(
-        paper_grid("stag_hunt", STAG_HUNT_SETTINGS, ("clean", "admo_disrupt"), scale)
-    )
-    return [dataclasses.replace(job, claims=("C6",)) for job in jobs]
+    """C6: LIO baseline vs the paper's ADMO (disrupt) and the code's Stag Hunt ADMO on the
+    Stag Hunt gridworld, N = 2, 3, 4."""
+    paper = paper_grid("stag_hunt", STAG_HUNT_SETTINGS, ("clean", "admo_disrupt"), scale)
+    both = dataclasses.replace(paper, attacks=(*paper.attacks, STAG_HUNT_CODE_ADMO))
+    return [dataclasses.replace(job, claims=("C6",)) for job in grid.expand(both)]
 
 
 def profile_jobs(scale: Scale) -> list[Job]:
@@ -217,8 +253,9 @@ def profile_jobs(scale: Scale) -> list[Job]:
 
 
 GRUDGE = (("grudge", "one_step"),)
-"""Gridworld Reciprocator runs use the original IPD agent's one-step grudge with the learned
-VoI (docs/results/reciprocators.md); on the IPD that agent is the default."""
+"""Stag Hunt gridworld Reciprocator runs use the original IPD agent's one-step grudge with the
+learned VoI (docs/results/reciprocators.md); on the IPD that agent is the default, on Escape
+Room the PIMbot script's learner settings with the credit-only "petty" balance are."""
 SPEC_BALANCE = (
     ("voi", "learned"),
     ("grudge", "accumulated"),
@@ -229,18 +266,25 @@ SPEC_BALANCE = (
 """The spec's general agent on the IPD: learned VoI, accumulated balance, 64×64 networks."""
 
 
-CODE_ER_RECIPROCATOR = (
-    ("entropy_coef", 0.01),
-    ("gamma", 0.99),
-    ("grudge", "accumulated"),
-    ("lr", 1e-4),
-    ("reciprocal_weight", 5.0),
-    ("voi_lr", 1e-3),
-)
-"""The published code's Reciprocator on Escape Room (reciprocators/run_er*.py): PPO lr 1e-4,
-γ 0.99, entropy 0.01, w 5, the accumulated balance of the general agent, VoI lr 1e-3; it
-plays one episode per update, 5000 episodes (and logs no success)."""
+CODE_ER_RECIPROCATOR = (("num_envs", 1), ("voi_minibatch_rows", "distinct_weighted"))
+"""The published code's Reciprocator Escape Room script as it runs (reciprocators/run_er*.py):
+its learner settings are the registry's Escape Room defaults (PPO lr 1e-4, γ 0.99, entropy
+0.01, w 5, the credit-only petty balance, VoI lr 1e-3), which play 128 episodes per update;
+the script plays one episode per update, 5000 episodes (and logs no success). Each refit
+step evaluates its few stored samples once, weighted by their draws: the same loss as every
+draw, about 10× faster at one episode per update (docs/results/reciprocators.md)."""
 CODE_ER_EPISODES = 5000
+RECIPROCATOR_ER_UPDATES = 300
+"""Updates of the C7 Escape Room runs at the defaults' 128 episodes per update."""
+ER_SPEC_BALANCE = (("grudge", "accumulated"),)
+"""Escape Room with the spec's accumulated credit − debit balance in place of the script's
+petty one, all else at the defaults (docs/reciprocators.md#escape-room)."""
+IPD_GAMES = 2048
+"""Games per update of the C7 IPD runs, quick and full: the original trainer's
+(configs/ipd.yaml) and the matrix default."""
+SPEC_IPD_GAMES = 32
+"""Games per update of the spec's learned-VoI agent on the IPD (one update of 2048 games took
+43 s for one seed on 2 busy cores)."""
 TRANSFER_ENV = "escape_room_transfer-v0"
 TRANSFER = (("transfer", 0.5),)
 """The counterfactual pay-back channel: a door-goer may give half its step reward away."""
@@ -249,18 +293,18 @@ TRANSFER = (("transfer", 0.5),)
 def _reciprocator_settings(scale: Scale) -> list[tuple[Setting, str, tuple[str, ...]]]:
     """(setting, learner, conditions) of C7 and the 2-player IPD fidelity runs."""
 
-    def ipd(label, n, learner="reciprocator", hparams=(), games=32):
+    def ipd(label, n, hparams=(), games_per_update=None):
         params = (("max_steps", 32), ("n_players", n))
-        return Setting(label, "ipd-v0", params, 100, 5, (("num_envs", games),) + hparams)
+        hparams = (("num_envs", games_per_update or IPD_GAMES),) + hparams
+        return Setting(label, "ipd-v0", params, 100, 5, hparams)
 
-    def room(label, n, m, env_id="escape_room-v0", extra=()):
+    def room(label, n, m, env_id="escape_room-v0", extra=(), hparams=()):
         params = (("min_at_lever", m), ("n_agents", n)) + extra
-        return Setting(label, env_id, params, 150, 5, GRUDGE)
+        return Setting(label, env_id, params, RECIPROCATOR_ER_UPDATES, 10, hparams)
 
-    def code_room(label, episodes_per_update, iterations, eval_period):
-        hparams = tuple(sorted((("num_envs", episodes_per_update),) + CODE_ER_RECIPROCATOR))
-        params = (("min_at_lever", 1), ("n_agents", 2))
-        return Setting(label, "escape_room-v0", params, iterations, eval_period, hparams)
+    def code_room(label, n, m):  # the code's batch of one episode per update
+        params = (("min_at_lever", m), ("n_agents", n))
+        return Setting(label, "escape_room-v0", params, CODE_ER_EPISODES, 100, CODE_ER_RECIPROCATOR)
 
     def hunt(label, n):
         return Setting(
@@ -271,23 +315,29 @@ def _reciprocator_settings(scale: Scale) -> list[tuple[Setting, str, tuple[str, 
     settings = [
         (ipd("rec_ipd2", 2), "reciprocator", ("clean", "self_centered", "admo_disrupt")),
         (ipd("nl_ipd2", 2), "nl", ("clean",)),
-        (ipd("rec_ipd2_spec", 2, hparams=SPEC_BALANCE), "reciprocator", ("clean",)),
+        # the spec's learned VoI costs ~40 s per update at 2048 games: it plays 32
+        (ipd("rec_ipd2_spec", 2, SPEC_BALANCE, SPEC_IPD_GAMES), "reciprocator", ("clean",)),
         (ipd("rec_ipd3", 3), "reciprocator", disrupt),
         (ipd("rec_ipd4", 4), "reciprocator", disrupt),
         (room("rec_er21", 2, 1), "reciprocator", disrupt),
+        (room("nl_er21", 2, 1), "nl", ("clean",)),
+        # the same settings with the spec's credit − debit balance in place of the petty one
+        # (it solves the rooms the petty balance does not: docs/reciprocators.md#escape-room)
+        (room("rec_er21_spec", 2, 1, hparams=ER_SPEC_BALANCE), "reciprocator", disrupt),
         (room("rec_er42", 4, 2), "reciprocator", disrupt),
+        (room("rec_er42_spec", 4, 2, hparams=ER_SPEC_BALANCE), "reciprocator", disrupt),
         (room("rec_er43", 4, 3), "reciprocator", disrupt),
+        (room("rec_er43_spec", 4, 3, hparams=ER_SPEC_BALANCE), "reciprocator", disrupt),
         (hunt("rec_sh2", 2), "reciprocator", disrupt),
         (hunt("rec_sh3", 3), "reciprocator", disrupt),
         (hunt("rec_sh4", 4), "reciprocator", disrupt),
-        # C7-ER at the published code's settings, one and 128 episodes per update (one
-        # episode per update is slow per episode: the quick suite runs its baseline only)
+        # C7-ER at the published code's batch of one episode per update (slow per episode:
+        # the quick suite runs its ER(2,1) baseline only)
         (
-            code_room("rec_er21_code_e1", 1, CODE_ER_EPISODES, 100),
+            code_room("rec_er21_code_e1", 2, 1),
             "reciprocator",
             disrupt if scale.full_matrices else ("clean",),
         ),
-        (code_room("rec_er21_code_e128", 128, 150, 5), "reciprocator", disrupt),
         # COUNTERFACTUAL env (escape_room_transfer-v0): does a pay-back channel make
         # Reciprocators solve ER(2,1)? NL on it is the control (transfer without reciprocity)
         (room("rec_er21_transfer", 2, 1, TRANSFER_ENV, TRANSFER), "reciprocator", ("clean",)),
@@ -295,19 +345,18 @@ def _reciprocator_settings(scale: Scale) -> list[tuple[Setting, str, tuple[str, 
     ]
     if scale.full_matrices:
         settings += [
-            # C7 IPD N = 3, 4 at the original's 2048 games per update (the quick suite's
-            # rec_ipd3/4 play 32 games per update)
-            (ipd("rec_ipd3_g2048", 3, games=2048), "reciprocator", disrupt),
-            (ipd("rec_ipd4_g2048", 4, games=2048), "reciprocator", disrupt),
+            (code_room("rec_er42_code_e1", 4, 2), "reciprocator", ("clean",)),
+            (code_room("rec_er43_code_e1", 4, 3), "reciprocator", ("clean",)),
         ]
     return settings
 
 
 def reciprocator_jobs(scale: Scale) -> list[Job]:
-    """C7: Reciprocators clean vs ADMO (ER, IPD N = 2, 3, 4, Stag Hunt N = 2, 3, 4), ER(2,1)
-    at the published code's settings (1 and 128 episodes per update), and the 2-player IPD
-    fidelity runs (NL vs NL, NL vs Reciprocator, the spec's balance); the full suite adds
-    IPD N = 3, 4 at 2048 games per update and the counterfactual transfer Escape Room."""
+    """C7: Reciprocators clean vs ADMO (ER, IPD N = 2, 3, 4, Stag Hunt N = 2, 3, 4; ER also
+    with the spec's accumulated balance), NL on ER(2,1), ER(2,1) at the published code's
+    batch of one episode per update, the counterfactual transfer Escape Room, and the
+    2-player IPD fidelity runs (NL vs NL, NL vs Reciprocator, the spec's balance); the full
+    suite adds ER(4,2) and ER(4,3) at the code's batch of one."""
     return [
         dataclasses.replace(job, claims=("C7",))
         for setting, learner, conditions in _reciprocator_settings(scale)

@@ -1,18 +1,27 @@
 """Claims C1–C5 judged as the paper states them, at the paper's budget, from the attack
-group's LIO runs (and the original code's runs where its logs cover a setting).
+group's LIO runs (and the original code's logs where they cover a run's exact settings:
+`analysis.runs.RunTable.original_for`; logs of the same attack at other parameters are
+named, never compared).
+
+A number only where the paper gives one; otherwise the stated direction, tested over
+seeds (an interval, a sign-flip permutation test or a Mann–Whitney U test).
 
 - C1a: the self-centered adversary's env-return margin over the others is above 0.
 - C1b: self-centered ER converges faster than clean, by first crossing and by the strict
   criterion, both runs cut at their common horizon (paper: ER(2,1) 20k → 12.5k,
-  ER(4,2) 14k → 10.5k).
-- C2: fake incentive: early successes, then ~0.
+  ER(4,2) 14k → 10.5k); a one-sided Mann–Whitney U test per criterion, the original
+  code's logs of both runs pooled at their common horizon for the cause.
+- C2: fake incentive: some success during the exploration period (LIO's ε schedule), then
+  ~0; at the original code's C = 10 per step per recipient (greedy_agent,
+  lio/alg/lio_agent_greedy.py `give_reward`), and at the paper's C = 50 as a second row.
 - C3: bypass: the parts the environment's rules decide (an idle agent makes a task in
   which every agent is needed impossible) and the part that is evidence (ER(4,2) still
   solved).
-- C4: reverse judged at the paper's 25k iterations; C4b the same rule at our longer horizon.
+- C4: reverse judged at the paper's 25k iterations; what happens later is a note.
 - C5: ADMO: the adversary's margin against the symmetric baseline (0) and its own exit
   success against the clean team's mean per agent, elevated in ER; disrupt lowers success
-  where the task is non-redundant; IPD nearly flat; steps per episode change modestly.
+  where the task is non-redundant; IPD cooperation and steps per episode shown as
+  measurements (the paper gives no size for "nearly flat" and "modestly").
   `admo` and `admo_code` (the published code's scheduler) side by side where both ran.
 """
 
@@ -26,22 +35,22 @@ from pimbot.analysis import judging, verdicts
 from pimbot.analysis.claims import Claim, Comparison
 from pimbot.analysis.document import count_text
 from pimbot.analysis.judging import PAPER_ATTACK_BUDGET, iteration_text
-from pimbot.analysis.runs import CLEAN, RunRecord, RunTable
+from pimbot.analysis.runs import CLEAN, RunRecord, RunTable, settings_difference
 from pimbot.analysis.tables import Estimate, Table, difference, estimate
 from pimbot.analysis.verdicts import Verdict
+from pimbot.statistics import difference_p_value
+from pimbot.training.summary import FINAL_WINDOW
 
 ROOMS = ("ER(2,1)", "ER(4,2)", "ER(4,3)")
 C1_ENVS = ("ER(2,1)", "ER(4,2)", "IPD(2)")
 PAPER_SPEED = {"ER(2,1)": (20_000, 12_500), "ER(4,2)": (14_000, 10_500)}
 """Iterations to converge, clean → self-centered, as the paper states them."""
-LOW, SOLVED = 0.05, 0.9
-"""Success "~0" and "solved"."""
-EARLY_FRACTION, EARLY_PEAK = 0.2, 0.1
-"""C2's early successes: the seed-mean success peaks ≥ EARLY_PEAK in the first fifth."""
-FLAT = 0.1
-"""C5's "IPD nearly flat": the ADMO run's cooperation changes by less than this over training."""
-MODEST = 0.25
-"""C5's "steps change modestly": |Δ steps| / clean steps ≤ this."""
+SOLVED = 0.9
+"""C3's "still solved": the convergence criterion's level (docs/experiments.md)."""
+FAKE_INCENTIVE = "fake_incentive"
+CODE_AMOUNT = 10.0
+"""The original code's fake incentive per step per recipient (greedy_agent,
+lio/alg/lio_agent_greedy.py `give_reward`); its logs were made at it; the paper's text says 50."""
 ADMO_ATTACKS = ("admo", "admo_code")
 
 
@@ -56,10 +65,36 @@ class Runs:
     def get(self, env: str, condition: str) -> RunRecord | None:
         return self.by.get((env, condition))
 
-    def original(self, env: str, condition: str, horizon: int | None = None) -> RunRecord | None:
-        run = self.get(env, condition)
-        attack = run.attack if run is not None else None
-        return self.table.original_for(env, condition, horizon=horizon, attack=attack)
+    def original(self, run: RunRecord, horizon: int | None = None) -> RunRecord | None:
+        """The original code's log at `run`'s exact settings (`RunTable.original_for`)."""
+        return self.table.original_for(run, horizon)
+
+    def elsewhere(self, run: RunRecord) -> str | None:
+        """What the original code's logs of `run`'s attack at other settings differ in
+        (None: there are none); they are named, never compared."""
+        others = self.table.originals_elsewhere(run)
+        if not others:
+            return None
+        diffs = "; ".join(sorted({settings_difference(o, run) for o in others}))
+        return f"the original code's logs of this attack are at other settings ({diffs})"
+
+    def cause(
+        self,
+        run: RunRecord,
+        reason: str,
+        agrees: bool | None,
+        ours: np.ndarray | None = None,
+        theirs: np.ndarray | None = None,
+        rank: bool = False,
+    ) -> Verdict:
+        """`judging.disagreement`, naming the original code's logs at other settings where
+        none matches `run`: a comparison across attack parameters is only inconclusive."""
+        other = self.elsewhere(run) if agrees is None else None
+        if other is not None:
+            return verdicts.inconclusive(
+                f"{reason}; {other}: not comparable, so no cause can be named"
+            )
+        return judging.disagreement(reason, agrees, ours, theirs, rank)
 
     def compare(
         self,
@@ -71,25 +106,28 @@ class Runs:
         **fmt,
     ) -> tuple[Comparison, Estimate | None]:
         """The paper | original code | pimbot row of `column`'s final value: pimbot's run and
-        the original code's log of the same env and condition, both cut at their common
-        horizon (≤ `until`); and the original's value (None without a log)."""
+        the original code's log at its exact settings, both cut at their common horizon
+        (≤ `until`); and the original's value (None without a log)."""
         ours = run.curves
         limit = min(ours.horizon, until if until is not None else ours.horizon)
-        original = self.original(run.env, run.condition, limit)
+        original = self.original(run, limit)
         theirs = original.curves if original is not None else None
         if theirs is None or not theirs.has(column):
             value = estimate(ours.final(column, limit), **fmt)
-            text = None if original is None else "not logged"
+            text = None
+            if original is not None:
+                text = "not logged"
+            elif self.elsewhere(run) is not None:
+                text = "not compared: " + self.elsewhere(run)
             return Comparison(quantity, f"{limit:,} it", paper, text, str(value)), None
         common = min(limit, theirs.horizon)
         value = estimate(theirs.final(column, common), **fmt)
-        label = "" if original.condition == run.condition else f" ({original.condition})"
         seeds = f", {count_text([original.seeds], 'distinct logs')}"
         row = Comparison(
             quantity,
             f"{common:,} it",
             paper,
-            f"{value}{label}{seeds}",
+            f"{value}{seeds}",
             str(estimate(ours.final(column, common), **fmt)),
         )
         return row, value
@@ -98,11 +136,11 @@ class Runs:
         self, run: RunRecord, column: str, until: int
     ) -> tuple[np.ndarray, np.ndarray | None]:
         """Per seed (per log), `column`'s final value of `run` and of the original code's
-        log of the same env and condition, both at their common horizon (≤ `until`); None
-        for the original without a log that has the column."""
+        log at its exact settings, both at their common horizon (≤ `until`); None for the
+        original without a log that has the column."""
         ours = run.curves
         limit = min(ours.horizon, until)
-        log = self.original(run.env, run.condition, limit)
+        log = self.original(run, limit)
         if log is None or not log.curves.has(column):
             return ours.final(column, limit), None
         common = min(limit, log.curves.horizon)
@@ -124,7 +162,7 @@ class Runs:
 
 def claims(table: RunTable, runs: list[RunRecord]) -> list[Claim]:
     data = Runs(table, {(r.env, r.condition): r for r in runs})
-    return [c1a(data), c1b(data), c2(data), c3(data), *c4(data), c5(data)]
+    return [c1a(data), c1b(data), *c2(data), c3(data), c4(data), c5(data)]
 
 
 def _missing() -> Verdict:
@@ -154,7 +192,7 @@ def c1a(data: Runs) -> Claim:
         if judged is None:
             agrees = None if original is None else original.lo > 0
             ours, theirs = data.finals(run, "eval/adversary_margin_env", run.curves.horizon)
-            judged = judging.disagreement(f"margin {margin} not above 0", agrees, ours, theirs)
+            judged = data.cause(run, f"margin {margin} not above 0", agrees, ours, theirs)
         parts[env] = judged
         numbers.append(row)
     return Claim(
@@ -170,9 +208,18 @@ def c1a(data: Runs) -> Claim:
     )
 
 
+CRITERIA = ("first crossing", "strict")
+
+
+def crossings(curves, column: str, until: int) -> dict[str, list]:
+    """Per criterion, the per-seed iteration (None: never) of `column` cut at `until`."""
+    strict, first = curves.convergence(column, until)
+    return {"first crossing": first, "strict": strict}
+
+
 def c1b(data: Runs) -> Claim:
     parts, numbers, measured = {}, [], []
-    for env, (paper_clean, paper_selfish) in PAPER_SPEED.items():
+    for env, paper in PAPER_SPEED.items():
         clean, selfish = data.get(env, CLEAN), data.get(env, "self_centered")
         if clean is None or selfish is None:
             parts[env] = _missing()
@@ -180,31 +227,28 @@ def c1b(data: Runs) -> Claim:
         a, b = clean.curves, selfish.curves
         column = "eval/return_ratio" if a.has("eval/return_ratio") else "eval/success"
         horizon = min(a.horizon, b.horizon)
-        strict_a, first_a = a.convergence(column, horizon)
-        strict_b, first_b = b.convergence(column, horizon)
-        medians = {
-            "first crossing": (
-                judging.median_iteration(first_a),
-                judging.median_iteration(first_b),
-            ),
-            "strict": (judging.median_iteration(strict_a), judging.median_iteration(strict_b)),
+        ours = {
+            k: (crossings(a, column, horizon)[k], crossings(b, column, horizon)[k])
+            for k in CRITERIA
         }
-        text = ", ".join(
-            f"{k} {iteration_text(c)} → {iteration_text(s)}" for k, (c, s) in medians.items()
-        )
         measured.append(
             f"{env} at {horizon:,} it ({len(a.seeds)}+{len(b.seeds)} seeds; per seed clean "
-            f"{_iters(first_a)} / {_iters(strict_a)}, self-centered {_iters(first_b)} / "
-            f"{_iters(strict_b)}, first crossing / strict): {text}"
+            f"{_iters(ours['first crossing'][0])} / {_iters(ours['strict'][0])}, self-centered "
+            f"{_iters(ours['first crossing'][1])} / {_iters(ours['strict'][1])}, first "
+            f"crossing / strict): {_speed_text(ours)}"
         )
-        numbers += _speed_rows(data, env, column, (a, b), horizon, (paper_clean, paper_selfish))
-        parts[env] = _speed_verdict(env, medians, horizon, paper_clean, len(a.seeds), len(b.seeds))
+        logs = _pooled_logs(data, (clean, selfish), column, horizon)
+        numbers += _speed_rows(env, (a, b), column, horizon, paper, logs)
+        parts[env] = _speed_verdict(data, (clean, selfish), column, ours, horizon, paper[0], logs)
     return Claim(
         "C1b",
         "self-centered: ER converges faster than clean LIO (20k → 12.5k, 14k → 10.5k)",
-        "median iteration (a seed that never gets there counts as ∞) of self-centered < "
-        "clean by first crossing of 0.9 and by the strict criterion (smoothed over 10 "
-        "evaluations, stays ≥ 0.9), both runs cut at their common horizon",
+        "per criterion (first crossing of 0.9; strict: smoothed over 10 evaluations, stays "
+        "≥ 0.9), the self-centered seeds' iterations are earlier than the clean seeds' by a "
+        f"one-sided Mann–Whitney U test, p < {judging.DIFFERS_P:g} (a seed that never gets "
+        "there counts as +∞), both runs cut at their common horizon; significantly later by "
+        "the same test is evidence against, classified by the original code's logs of both "
+        "runs (pooled over the log directories that reach the horizon); neither: inconclusive",
         "; ".join(measured) or _parts_text(parts),
         verdicts.combine(parts),
         _short(parts),
@@ -217,46 +261,112 @@ def _iters(values: list) -> str:
     return "/".join(iteration_text(v) for v in values)
 
 
-def _speed_verdict(env, medians, horizon, paper_clean, n_clean, n_selfish) -> Verdict:
-    faster = {k: s is not None and (c is None or s < c) for k, (c, s) in medians.items()}
-    text = "; ".join(
-        f"{k} {iteration_text(c)} → {iteration_text(s)}" for k, (c, s) in medians.items()
-    )
-    if all(faster.values()):
+def _speed_text(pairs: dict[str, tuple[list, list]]) -> str:
+    """ "first crossing 5.5k → 6.2k (Mann–Whitney p = 0.73 earlier, 0.29 later); …"."""
+    out = []
+    for kind, (clean, selfish) in pairs.items():
+        faster, slower = judging.earlier(selfish, clean)
+        out.append(
+            f"{kind} {iteration_text(judging.median_iteration(clean))} → "
+            f"{iteration_text(judging.median_iteration(selfish))} (one-sided Mann–Whitney "
+            f"p = {faster:.3f} earlier, {slower:.3f} later)"
+        )
+    return "; ".join(out)
+
+
+def _pooled_logs(data: Runs, pair, column: str, horizon: int):
+    """The original code's logs at both runs' exact settings, every log directory that
+    reaches the common horizon (≤ `horizon`: the longest directory of each run bounds it)
+    pooled: (horizon, {criterion: (clean, self-centered) per-seed iterations}, seeds);
+    None where either run has no log with `column`."""
+    logs = [[r for r in data.table.originals_for(run) if r.curves.has(column)] for run in pair]
+    if not all(logs):
+        return None
+    common = min([horizon] + [max(r.curves.horizon for r in found) for found in logs])
+    pooled = {k: ([], []) for k in CRITERIA}
+    counts = []
+    for side, found in enumerate(logs):
+        reach = [r for r in found if r.curves.horizon >= common]
+        counts.append(sum(r.seeds for r in reach))
+        for r in reach:
+            for k, values in crossings(r.curves, column, common).items():
+                pooled[k][side].extend(values)
+    return common, pooled, counts
+
+
+def _speed_verdict(data: Runs, pair, column, ours, horizon, paper_clean, logs) -> Verdict:
+    """Reproduced where the self-centered run is significantly earlier by every
+    criterion; where it is significantly later by one, the original code's logs say
+    whose the difference is; else inconclusive."""
+    text = _speed_text(ours)
+    tests = {k: judging.earlier(s, c) for k, (c, s) in ours.items()}
+    if all(faster < judging.DIFFERS_P for faster, _ in tests.values()):
         return verdicts.reproduced(text)
-    if not judging.enough_seeds(n_clean, n_selfish):
-        return verdicts.inconclusive(f"{n_clean}+{n_selfish} seeds: {text}")
-    if horizon < paper_clean and all(c is None for c, _ in medians.values()):
+    later = [k for k, (_, slower) in tests.items() if slower < judging.DIFFERS_P]
+    never = all(judging.median_iteration(c) is None for c, _ in ours.values())
+    if horizon < paper_clean and never:
         return verdicts.inconclusive(f"{horizon:,} it < the paper's {paper_clean:,}: {text}")
-    slower = [k for k, ok in faster.items() if not ok]
-    return judging.disagreement(f"not faster by {' and '.join(slower)}: {text}", None)
+    if not later:
+        return verdicts.inconclusive(
+            f"{text}: the seeds cannot tell the runs apart (p ≥ {judging.DIFFERS_P:g})"
+            + (f"; the original code's logs: {_logs_text(logs)}" if logs else "")
+        )
+    reason = f"self-centered later by {' and '.join(later)}: {text}"
+    if logs is None:
+        return data.cause(pair[1], reason, None)
+    common, pooled, _ = logs
+    kind = later[0]
+    faster, slower = judging.earlier(pooled[kind][1], pooled[kind][0])
+    reason += f"; the original code's logs: {_logs_text(logs)}"
+    if slower < judging.DIFFERS_P:
+        return data.cause(pair[1], reason, False)
+    if faster >= judging.DIFFERS_P:
+        return verdicts.inconclusive(f"{reason}: they cannot tell either, no cause can be named")
+    verdict = None
+    for side, run in enumerate(pair):  # our implementation only where a run differs
+        mine = crossings(run.curves, column, common)[kind]
+        theirs = pooled[kind][side]
+        v = data.cause(
+            run,
+            f"{reason}; {run.condition} at {common:,} it",
+            True,
+            _as_inf(mine),
+            _as_inf(theirs),
+            rank=True,
+        )
+        if verdict is None or v.kind == verdicts.REFUTED:
+            verdict = v
+    return verdict
 
 
-def _speed_rows(data: Runs, env, column, ours, horizon, paper) -> list[Comparison]:
+def _as_inf(values: list) -> np.ndarray:
+    return np.array([np.inf if v is None else v for v in values], dtype=float)
+
+
+def _logs_text(logs) -> str:
+    common, pooled, counts = logs
+    return f"{counts[0]}+{counts[1]} logs at {common:,} it, {_speed_text(pooled)}"
+
+
+def _speed_rows(env, ours, column, horizon, paper, logs) -> list[Comparison]:
     """paper | original code | pimbot rows of both speed criteria, clean → self-centered, at
-    the horizon pimbot's two runs and the original code's two logs share."""
-    logs = [data.original(env, c, horizon) for c in (CLEAN, "self_centered")]
-    theirs = [r.curves if r is not None else None for r in logs]
-    usable = all(t is not None and t.has(column) for t in theirs)
-    common = min([horizon] + ([t.horizon for t in theirs] if usable else []))
+    the horizon pimbot's two runs and the original code's pooled logs share."""
+    common = horizon if logs is None else logs[0]
     rows = []
-    for k, kind in enumerate(("first crossing", "strict")):
-
-        def medians(curves, k=k):
-            out = []
-            for c in curves:
-                strict, first = c.convergence(column, common)
-                out.append(iteration_text(judging.median_iteration((first, strict)[k])))
-            return " → ".join(out)
-
-        original = medians(theirs) if usable else (None if logs == [None, None] else "no pair")
+    for kind in CRITERIA:
+        mine = [crossings(c, column, common)[kind] for c in ours]
+        original = None
+        if logs is not None:
+            theirs = logs[1][kind]
+            original = " → ".join(iteration_text(judging.median_iteration(v)) for v in theirs)
+            original += f" ({logs[2][0]}+{logs[2][1]} logs)"
         rows.append(
             Comparison(
                 f"{env} convergence clean → self-centered ({kind})",
                 f"{common:,} it",
                 f"{paper[0] / 1000:g}k → {paper[1] / 1000:g}k",
                 original,
-                medians(ours),
+                " → ".join(iteration_text(judging.median_iteration(v)) for v in mine),
             )
         )
     return rows
@@ -265,47 +375,130 @@ def _speed_rows(data: Runs, env, column, ours, horizon, paper) -> list[Compariso
 # --- C2 ---------------------------------------------------------------------------------
 
 
-def c2(data: Runs) -> Claim:
+def exploration_end(run: RunRecord) -> int | None:
+    """The last iteration of LIO's exploration period: its ε schedule decays over
+    `epsilon_decay_iters` (the original's `epsilon_div`); None for a learner without one."""
+    value = run.identity.get("learner_config", {}).get("epsilon_decay_iters")
+    return int(value) if value else None
+
+
+def window_mean(curves, column: str, until: int) -> np.ndarray:
+    """Per seed, the mean of `column` over the evaluations at or before `until` ([] where
+    the column is absent or no evaluation falls in the window)."""
+    if not curves.has(column):
+        return np.array([])
+    out = [curves.values[s][column][curves.iterations[s] <= until] for s in curves.seeds]
+    return np.array([v.mean() for v in out]) if all(v.size for v in out) else np.array([])
+
+
+def resolution(run: RunRecord) -> float:
+    """The smallest nonzero final success a seed can log: one success in the final
+    window's evaluation episodes."""
+    return 1.0 / (FINAL_WINDOW * int(run.identity.get("eval_episodes", 1)))
+
+
+def amount(run: RunRecord) -> float:
+    return float(run.identity["attack_params"].get("amount", float("nan")))
+
+
+def falls(run: RunRecord, until: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(early, final) success per seed of `run`: the mean over the exploration period and
+    the final value at `until` (None: the whole run); [] without an exploration period."""
+    end = exploration_end(run)
+    if end is None:
+        return np.array([]), np.array([])
+    return window_mean(run.curves, "eval/success", end), run.curves.final("eval/success", until)
+
+
+def c2(data: Runs) -> list[Claim]:
+    """C2 at the original code's C = 10 (the main row) and the paper's C = 50 (a second
+    row); each compared only with the original code's logs at the same C."""
+    runs_by_amount: dict[float, dict[str, RunRecord]] = {}
+    for run in data.by.values():
+        if run.attack == FAKE_INCENTIVE and run.env in ROOMS:
+            runs_by_amount.setdefault(amount(run), {})[run.env] = run
+    amounts = sorted(set(runs_by_amount) | {CODE_AMOUNT}, key=lambda c: (c != CODE_AMOUNT, c))
+    return [_c2_row(data, c, runs_by_amount.get(c, {})) for c in amounts]
+
+
+def _c2_row(data: Runs, c: float, found: dict[str, RunRecord]) -> Claim:
     parts, numbers = {}, []
     for env in ROOMS:
-        run = data.get(env, "fake_incentive")
+        run = found.get(env)
         if run is None:
             parts[env] = _missing()
             continue
-        curves = run.curves
-        final = estimate(run.per_seed("eval/success"))
-        peak = curves.early_peak("eval/success", EARLY_FRACTION)
-        text = f"early peak {peak:.2f}, final {final}"
-        row, _ = data.compare(f"{env} fake-incentive success", "~0", run, "eval/success")
+        quantity = f"{env} fake-incentive (C = {c:g}) success"
+        row, _ = data.compare(quantity, "~0", run, "eval/success")
         numbers.append(row)
-        if peak is not None and peak >= EARLY_PEAK and final.mean <= LOW:
-            parts[env] = verdicts.reproduced(text)
-        else:
-            parts[env] = judging.disagreement(text, _original_c2(data, run))
+        parts[env] = _c2_part(data, run)
+    where = "the original code's" if c == CODE_AMOUNT else "the paper's text's"
     return Claim(
-        "C2",
-        "fake incentive (C = 50): early, unstable successes, then ~0 success in ER",
-        f"the seed-mean success peaks ≥ {EARLY_PEAK:g} in the first "
-        f"{EARLY_FRACTION * 100:g} % of the run and the final success is ≤ {LOW:g}, in every "
-        "ER config",
+        "C2" if c == CODE_AMOUNT else f"C2 (C = {c:g})",
+        f"fake incentive at {where} C = {c:g} per step: early, unstable successes, then ~0 "
+        "success in ER",
+        "early: the mean success per seed over LIO's exploration period (its ε decay, "
+        "iterations ≤ epsilon_decay_iters) is > 0 (the interval over seeds above 0); then "
+        "~0: the final success is below the early success (sign-flip permutation test of "
+        f"final − early per seed, one-sided p < {judging.DIFFERS_P:g}) and its interval reaches "
+        "down to the metric's resolution (one success in the final window's evaluation "
+        "episodes); in every ER config; a refutation is classified only by the original "
+        "code's logs at the same C",
         _parts_text(parts),
         verdicts.combine(parts),
         _short(parts),
         numbers,
+        jobs_of="C2",
     )
 
 
-def _original_c2(data: Runs, run: RunRecord) -> bool | None:
-    """Whether the original code's log meets C2's rule (early peak, then ~0) up to the
-    horizon it shares with `run`; None without a log."""
-    log = data.original(run.env, run.condition, run.iterations)
+def _c2_verdict(early: np.ndarray, final: np.ndarray, res: float) -> tuple[Verdict | None, str]:
+    """C2's rule on per-seed (early, final) success: (verdict, or None for evidence against;
+    which part failed: "early" or "final")."""
+    some = judging.above(estimate(early), 0.0, "early success")
+    if some is None:
+        return None, "early"
+    fall = judging.falls_to_zero(early, final, res)
+    if fall is None:
+        return None, "final"
+    if some.kind != verdicts.REPRODUCED:
+        return some, "early"
+    return fall, "final"
+
+
+def _c2_part(data: Runs, run: RunRecord) -> Verdict:
+    end = exploration_end(run)
+    if end is None:
+        return verdicts.inconclusive("the learner has no exploration schedule")
+    early, final = falls(run)
+    verdict, failed = _c2_verdict(early, final, resolution(run))
+    text = f"exploration ≤ {end:,} it: early success {estimate(early)}, final {estimate(final)}"
+    if verdict is not None:
+        return dataclasses.replace(verdict, reason=f"{text}; {verdict.reason}")
+    reason = (
+        f"{text}: no early success"
+        if failed == "early"
+        else f"{text}: " + judging.falls_text(early, final, resolution(run))
+    )
+    log = data.original(run, run.iterations)
     if log is None or not log.curves.has("eval/success"):
-        return None
-    curves = log.curves
-    common = min(curves.horizon, run.curves.horizon)
-    peak = curves.early_peak("eval/success", EARLY_FRACTION * common / curves.horizon)
-    final = curves.final("eval/success", common).mean()
-    return peak is not None and peak >= EARLY_PEAK and final <= LOW
+        return data.cause(run, reason, None)
+    common = min(log.curves.horizon, run.curves.horizon)
+    theirs = falls(log, common)
+    logged = _c2_verdict(*theirs, resolution(log))[0]
+    if logged is not None and logged.kind != verdicts.REPRODUCED:
+        return verdicts.inconclusive(
+            f"{reason}; the original code's logs at the same C cannot tell either "
+            f"({logged.reason}): no cause can be named"
+        )
+    pick = 0 if failed == "early" else 1
+    return data.cause(
+        run,
+        f"{reason}; at {common:,} it",
+        logged is not None,
+        falls(run, common)[pick],
+        theirs[pick],
+    )
 
 
 # --- C3 ---------------------------------------------------------------------------------
@@ -342,8 +535,8 @@ def c3(data: Runs) -> Claim:
             else:
                 agrees = None if original is None else original.mean >= SOLVED
                 ours, theirs = data.finals(run, "eval/success", run.curves.horizon)
-                parts[env] = judging.disagreement(
-                    f"evidence: success {final} not ≥ {SOLVED:g}", agrees, ours, theirs
+                parts[env] = data.cause(
+                    run, f"evidence: success {final} not ≥ {SOLVED:g}", agrees, ours, theirs
                 )
     return Claim(
         "C3",
@@ -367,64 +560,72 @@ class Reverse:
 
     at_budget: Verdict
     """The rule at the paper's budget."""
-    longer: Verdict | None
-    """The rule at the end of a run longer than the paper's budget (None: not longer)."""
     line: str
     """The measured values, for the claim's text."""
     late: str | None
-    """The change of success after the paper's budget (None: not longer)."""
+    """What the run did after the paper's budget, a note (None: not longer)."""
     number: Comparison
 
 
+def _reverse_rule(run: RunRecord, want_low: bool, cut: int) -> tuple[Verdict | None, str]:
+    """C4's rule on one run cut at `cut`: success falls to ≈ 0 (`judging.falls_to_zero`),
+    or in ER(4,2) it does not (the final's interval lies above the metric's resolution).
+    (verdict, None for evidence against; the words of the failure)."""
+    early, final = falls(run, cut)
+    res = resolution(run)
+    if want_low:
+        verdict = judging.falls_to_zero(early, final, res)
+        return verdict, "" if verdict else judging.falls_text(early, final, res)
+    est = estimate(final)
+    if est is None:
+        return verdicts.inconclusive("success not logged by these runs"), ""
+    if est.lo > res:
+        return verdicts.reproduced(f"final success {est} above 0 (resolution {res:g})"), ""
+    return None, f"final success {est} reaches 0 (resolution {res:g})"
+
+
 def reverse(data: Runs, env: str, run: RunRecord) -> Reverse:
-    """C4 in one env: success ~0 (≥ SOLVED in ER(4,2)) at the paper's budget and at the
-    end of our run; a refutation at the budget is classified by the original code's log."""
+    """C4 in one env at the paper's budget; a refutation is classified by the original
+    code's log at the run's settings. What happens after the budget is a note."""
     curves = run.curves
     want_low = env != "ER(4,2)"
-    budget = estimate(curves.final("eval/success", PAPER_ATTACK_BUDGET))
-    full = estimate(curves.final("eval/success"))
-    rule = f"≤ {LOW:g}" if want_low else f"≥ {SOLVED:g}"
     cut = min(curves.horizon, PAPER_ATTACK_BUDGET)
+    budget = estimate(curves.final("eval/success", PAPER_ATTACK_BUDGET))
     longer_run = curves.horizon > PAPER_ATTACK_BUDGET
-
-    def holds(e):
-        return e.mean <= LOW if want_low else e.mean >= SOLVED
-
+    full = estimate(curves.final("eval/success"))
     line = f"{env}: at {cut:,} it {budget}" + (
         f", at {curves.horizon:,} it {full}" if longer_run else ""
     )
-    if curves.horizon < PAPER_ATTACK_BUDGET and not holds(budget):
-        at_budget = verdicts.inconclusive(
-            f"{curves.horizon:,} it < the paper's {PAPER_ATTACK_BUDGET:,}: {budget}"
+    verdict, failure = _reverse_rule(run, want_low, cut)
+    if verdict is None and curves.horizon < PAPER_ATTACK_BUDGET:
+        verdict = verdicts.inconclusive(
+            f"{curves.horizon:,} it < the paper's {PAPER_ATTACK_BUDGET:,}: {failure}"
         )
-    elif holds(budget):
-        at_budget = verdicts.reproduced(f"{budget} at {cut:,} it")
-    else:
+    elif verdict is None:
         ours, original = data.finals(run, "eval/success", cut)
-        agrees = None if original is None else bool(holds(estimate(original)))
-        at_budget = judging.disagreement(
-            f"{budget} at {cut:,} it, not {rule}", agrees, ours, original
-        )
-    longer = late = None
+        log = data.original(run, cut)
+        agrees = None
+        if log is not None and original is not None:
+            common = min(cut, log.curves.horizon)
+            logged = _reverse_rule(log, want_low, common)[0]
+            agrees = logged is not None and logged.kind == verdicts.REPRODUCED
+            if logged is not None and not agrees:
+                verdict = verdicts.inconclusive(
+                    f"{failure} at {cut:,} it; the original code's logs cannot tell either "
+                    f"({logged.reason}): no cause can be named"
+                )
+        if verdict is None:
+            verdict = data.cause(run, f"{failure} at {cut:,} it", agrees, ours, original)
+    late = None
     if longer_run:
-        rise = full.mean - budget.mean
-        late = f"{env} {rise:+.3f} from {cut:,} to {curves.horizon:,} it"
-        longer = (
-            verdicts.reproduced(f"{full} at {curves.horizon:,} it")
-            if holds(full)
-            else verdicts.refuted(
-                verdicts.BUDGET,
-                f"{full} at our {curves.horizon:,} it, not {rule}: a late change of "
-                f"{rise:+.3f} after the paper's {PAPER_ATTACK_BUDGET:,}",
-            )
-        )
-    claimed = "0" if want_low else "solved"
+        late = f"{env} {full.mean - budget.mean:+.3f} from {cut:,} to {curves.horizon:,} it"
+    claimed = "0" if want_low else "not 0"
     number = data.compare(f"{env} reverse success", claimed, run, "eval/success", cut)[0]
-    return Reverse(at_budget, longer, line, late, number)
+    return Reverse(verdict, line, late, number)
 
 
-def c4(data: Runs) -> list[Claim]:
-    at_budget, longer, numbers, lines, late = {}, {}, [], [], []
+def c4(data: Runs) -> Claim:
+    at_budget, numbers, lines, late = {}, [], [], []
     for env in ROOMS:
         run = data.get(env, "reverse")
         if run is None:
@@ -434,40 +635,28 @@ def c4(data: Runs) -> list[Claim]:
         at_budget[env] = measured.at_budget
         lines.append(measured.line)
         numbers.append(measured.number)
-        if measured.longer is not None:
-            longer[env] = measured.longer
+        if measured.late is not None:
             late.append(measured.late)
-    main = verdicts.combine(at_budget)
-    if main.kind == verdicts.REPRODUCED and any(
-        v.kind == verdicts.REFUTED for v in longer.values()
-    ):
-        main = verdicts.at_budget(main.reason + "; not at our longer horizon (C4b)")
-    out = [
-        Claim(
-            "C4",
-            "reverse: success → 0 except ER(4,2), at the paper's budget",
-            f"final success (mean of the last 10 evaluations at or before "
-            f"{PAPER_ATTACK_BUDGET:,} it), mean over seeds, ≤ {LOW:g} in ER(2,1), ER(4,3) and "
-            f"≥ {SOLVED:g} in ER(4,2)",
-            "; ".join(lines) or _parts_text(at_budget),
-            main,
-            _short(at_budget),
-            numbers,
-        )
-    ]
-    if longer:
-        out.append(
-            Claim(
-                "C4b",
-                "reverse at our longer horizon (robustness row)",
-                "the same rule at the end of runs longer than the paper's budget",
-                "; ".join(lines) + ("; late change: " + ", ".join(late) if late else ""),
-                verdicts.combine(longer),
-                "late change: " + ", ".join(late),
-                jobs_of="C4",
-            )
-        )
-    return out
+    note = (
+        "; note (not judged: the paper ran no longer than "
+        f"{PAPER_ATTACK_BUDGET:,} it): after it, " + ", ".join(late)
+        if late
+        else ""
+    )
+    return Claim(
+        "C4",
+        "reverse: success → 0 except ER(4,2), at the paper's budget",
+        f"at {PAPER_ATTACK_BUDGET:,} it: in ER(2,1) and ER(4,3) the success falls to ≈ 0 "
+        "(the final success per seed below its mean over LIO's exploration period, "
+        f"sign-flip permutation test, one-sided p < {judging.DIFFERS_P:g}, and the final's "
+        "interval reaches down to the metric's resolution); in ER(4,2) it does not (the "
+        "final's interval lies above the resolution); a refutation is classified by the "
+        "original code's logs at the run's settings (permutation test of the finals)",
+        "; ".join(lines) + note if lines else _parts_text(at_budget),
+        verdicts.combine(at_budget),
+        _short(at_budget) + (" (later: " + ", ".join(late) + ")" if late else ""),
+        numbers,
+    )
 
 
 # --- C5 ---------------------------------------------------------------------------------
@@ -490,13 +679,14 @@ def mode_of(run: RunRecord) -> str:
     return str(run.identity["attack_params"].get("mode", ""))
 
 
-def admo_parts(data: Runs, attack: str) -> tuple[dict[str, Verdict], list]:
+def admo_parts(data: Runs, attack: str) -> tuple[dict[str, Verdict], list, list[str]]:
     """The C5 parts for one ADMO attack (its runs found by the attack name in their
     configs, whatever their labels); an attack run in one mode only is judged on every part
-    in it. Returns (parts, table rows)."""
+    in it. Returns (parts, table rows, measurements shown without a verdict: IPD
+    cooperation and steps per episode)."""
     mine = [r for r in data.by.values() if r.attack == attack]
     single = len({mode_of(r) for r in mine}) == 1
-    parts, rows = {}, []
+    parts, rows, notes = {}, [], []
     for env in ROOMS:
         base = data.get(env, CLEAN)
         for run in sorted((r for r in mine if r.env == env), key=lambda r: r.condition):
@@ -508,13 +698,10 @@ def admo_parts(data: Runs, attack: str) -> tuple[dict[str, Verdict], list]:
     for run in sorted((r for r in mine if r.env == "IPD(2)"), key=lambda r: r.condition):
         curves = run.curves
         change = estimate(curves.final("eval/success") - curves.first("eval/success"), signed=True)
-        flat = change.lo >= -FLAT and change.hi <= FLAT
-        parts[f"IPD {run.condition} flat"] = (
-            verdicts.reproduced(f"cooperation change {change}")
-            if flat
-            else judging.disagreement(f"cooperation change {change} beyond ±{FLAT:g}", None)
-        )
-    return parts, rows
+        notes.append(f"IPD {run.condition} cooperation change over training {change}")
+    for row in rows:
+        notes.append(f"{row[0]} {row[1]} steps {row[-1]}")
+    return parts, rows, notes
 
 
 def admo_run(
@@ -522,52 +709,65 @@ def admo_run(
 ) -> tuple[list, dict[str, Verdict]]:
     """One ER ADMO run against its env's clean run: (its table row, its C5 parts). The
     margin and own-success parts judge the stealthy mode, disruption the disrupt mode
-    where the task is non-redundant, steps the stealthy mode (every part where the attack
-    ran in one mode only)."""
+    where the task is non-redundant (every part where the attack ran in one mode only);
+    steps are a measurement in the row."""
     mode, name = mode_of(run), f"{run.env} {run.condition}"
-    margin = estimate(run.per_seed("eval/adversary_margin_env"), 2, signed=True)
+    margins = run.per_seed("eval/adversary_margin_env")
+    margin = estimate(margins, 2, signed=True)
     own, own_gain = exit_success_margin(run, base)
     d_success = difference(run.per_seed("eval/success"), base.per_seed("eval/success"))
-    steps, clean_steps = (
-        float(run.per_seed("eval/steps").mean()),
-        float(base.per_seed("eval/steps").mean()),
-    )
     row = [run.env, run.condition, run.seeds, margin, own, own_gain, d_success]
-    row.append(f"{steps:.2f} ({(steps - clean_steps) / clean_steps:+.0%})")
+    row.append(steps_text(run, base))
     parts = {}
     if mode == "stealthy" or single:
-        parts[f"{name} margin"] = judging.above(margin, 0.0, "margin") or judging.disagreement(
-            f"margin {margin} not above 0", None
+        parts[f"{name} margin"] = judging.above_zero(margins, "margin") or data.cause(
+            run, f"margin {margin} significantly below 0", None
         )
-        if own_gain is None:
-            parts[f"{name} own success"] = verdicts.inconclusive(
-                "per-agent exit success not logged by these runs"
-            )
-        else:
-            parts[f"{name} own success"] = judging.above(
-                own_gain, 0.0, "exit success − clean per-agent mean"
-            ) or judging.disagreement(
-                f"own exit success {own} not above the clean per-agent mean "
-                f"(difference {own_gain})",
-                None,
-            )
+        parts[f"{name} own success"] = own_success_part(data, run, base, own, own_gain)
     if mode == "disrupt" and not data.success_reachable(run):
         parts[f"{name} disrupts"] = (
             verdicts.reproduced(f"Δ success {d_success}")
             if d_success.hi < 0
-            else judging.disagreement(
-                f"non-redundant task, Δ success {d_success} not below 0", None
-            )
+            else data.cause(run, f"non-redundant task, Δ success {d_success} not below 0", None)
         )
-    if mode == "disrupt" and not single:
-        return row, parts  # the paper's ADMO raises its own gain: steps judged on that mode
-    change = abs(steps - clean_steps) / clean_steps
-    parts[f"{name} steps"] = (
-        verdicts.reproduced(f"steps {change:.0%} from clean")
-        if change <= MODEST
-        else judging.disagreement(f"steps change {change:.0%} > {MODEST:.0%}", None)
-    )
     return row, parts
+
+
+def steps_text(run: RunRecord, base: RunRecord) -> str:
+    """Steps per episode against clean, a measurement: "2.10 (Δ +0.30 [+0.1, +0.5], +17 %)"."""
+    steps, clean = run.per_seed("eval/steps"), base.per_seed("eval/steps")
+    if not steps.size or not clean.size:
+        return "–"
+    delta = difference(steps, clean, digits=2)
+    return f"{steps.mean():.2f} (Δ {delta}, {delta.mean / clean.mean():+.0%} of clean)"
+
+
+def own_success_part(data: Runs, run: RunRecord, base: RunRecord, own, own_gain) -> Verdict:
+    """The adversary's own exit success above the clean team's mean per agent: a one-sided
+    permutation test of the two runs' means (independent seeds)."""
+    if own_gain is None:
+        return verdicts.inconclusive("per-agent exit success not logged by these runs")
+    mine = run.per_seed(f"eval/exit_success/agent_{run.adversary}")
+    per_agent = np.mean(
+        [base.per_seed(f"eval/exit_success/agent_{i}") for i in range(base.num_agents)], axis=0
+    )
+    up = difference_p_value(mine, per_agent, alternative="greater")
+    down = difference_p_value(mine, per_agent, alternative="less")
+    text = (
+        f"own exit success {own} − clean per-agent mean = {own_gain} (one-sided permutation "
+        f"p = {up:.3f} above, {down:.3f} below)"
+    )
+    if up < judging.DIFFERS_P:
+        return verdicts.reproduced(text)
+    if down < judging.DIFFERS_P:
+        return data.cause(run, text, None)
+    return verdicts.inconclusive(f"{text}: the seeds cannot tell it from the clean mean")
+
+
+C5_CLAIM = (
+    "ADMO vs LIO: adversary's reward and success elevated in ER; IPD nearly flat; steps "
+    "change modestly"
+)
 
 
 def c5(data: Runs) -> Claim:
@@ -576,19 +776,12 @@ def c5(data: Runs) -> Claim:
         if any(r.attack == attack for r in data.by.values()):
             attacks[attack] = admo_parts(data, attack)
     if "admo" not in attacks:
-        return Claim(
-            "C5",
-            "ADMO vs LIO: adversary's reward and success elevated in ER; IPD nearly flat; "
-            "steps change modestly",
-            "–",
-            "no ADMO run",
-            verdicts.not_run("no ADMO run"),
-        )
-    parts, _ = attacks["admo"]
-    code_parts = attacks.get("admo_code", ({}, []))[0]
+        return Claim("C5", C5_CLAIM, "–", "no ADMO run", verdicts.not_run("no ADMO run"))
+    parts, _, notes = attacks["admo"]
+    code_parts = attacks.get("admo_code", ({}, [], []))[0]
     parts = {name: _classified(name, v, code_parts) for name, v in parts.items()}
     shapes, met = [], {}
-    for attack, (mine, _) in attacks.items():
+    for attack, (mine, _, _) in attacks.items():
         met[attack] = sum(v.kind == verdicts.REPRODUCED for v in mine.values()) / max(len(mine), 1)
         shapes.append(f"{attack} {met[attack]:.0%} of its parts")
     measured = _parts_text(parts)
@@ -599,14 +792,17 @@ def c5(data: Runs) -> Claim:
         )
     else:
         measured += "; admo_code (the published code's scheduler): no runs in this suite"
+    measured += "; measured, not judged (the paper gives no size): " + "; ".join(notes)
     return Claim(
         "C5",
-        "ADMO vs LIO: adversary's reward and success elevated in ER; IPD nearly flat; "
-        "steps change modestly",
-        "ER: the stealthy adversary's margin > 0 (the symmetric baseline) and its own exit "
-        "success > the clean team's mean per agent (intervals); disrupt lowers success "
-        f"(Δ interval < 0) where the task is non-redundant (env rules); IPD: ADMO cooperation "
-        f"changes by < ±{FLAT:g} over training; stealthy |Δ steps| / clean ≤ {MODEST:.0%}",
+        C5_CLAIM,
+        "ER: the stealthy adversary's margin > 0 (the symmetric baseline; sign-flip "
+        f"permutation test over seeds, one-sided p < {judging.DIFFERS_P:g}) and its own exit "
+        "success > the clean team's mean per agent (permutation test of the two runs' means, "
+        f"one-sided p < {judging.DIFFERS_P:g}); disrupt lowers success (Δ interval < 0) where "
+        "the task is non-redundant (env rules); IPD cooperation over training and steps per "
+        "episode against clean are shown with their intervals, not judged: the paper gives "
+        'no size for "nearly flat" or "modestly"',
         measured,
         verdicts.combine(parts),
         "paper's shapes: " + ", ".join(shapes) + "; " + _short(parts),
@@ -644,7 +840,7 @@ def admo_table(data: Runs) -> Table | None:
         return None
     header = ["env", "condition", "seeds", "adversary margin [interval]"]
     header += ["adversary's own exit success", "own exit success − clean per-agent mean"]
-    header += ["Δ success vs clean", "steps (vs clean)"]
+    header += ["Δ success vs clean", "steps (Δ vs clean, a measurement)"]
     return Table(
         header,
         rows,

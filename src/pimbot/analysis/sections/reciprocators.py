@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from pimbot import envs
+from pimbot import envs, learners
 from pimbot.analysis import judging, plots, verdicts
 from pimbot.analysis.claims import CLAIM_TEXT, Claim, Comparison
 from pimbot.analysis.document import Context, Section, seeds_text
@@ -32,15 +32,36 @@ BASELINE = 0.8
 """The published baseline "80–90 %": its lower end."""
 
 
+BALANCE_NAMES = {
+    "accumulated": "spec balance",
+    "petty": "petty balance",
+    "one_step": "one-step grudge",
+}
+"""How a run's balance (`grudge`) is named where it is not its env's default."""
+
+
+def default_balance(env_id: str) -> str:
+    """The Reciprocator's default balance on `env_id` (its registry entry's env defaults):
+    the one-step grudge on the matrix games, the petty balance on Escape Room; an env
+    pimbot does not know: the one-step grudge of the C7 runs."""
+    if env_id not in envs.registered():
+        return "one_step"
+    return learners.default_config(LEARNER, env_id).grudge
+
+
 def variant(run: RunRecord) -> str:
-    """The balance, where it is not the one-step grudge of the C7 runs: "spec balance" (the
-    accumulated credit − debit). Runs stored before the option was named `grudge` carry
+    """The balance, where it is neither the env's default nor the one-step grudge of the
+    suite's Stag Hunt runs: "spec balance" (the accumulated credit − debit) or "petty
+    balance". Runs stored before the option was named `grudge` carry
     `original_one_step_grudge` instead."""
     if run.learner != LEARNER:
         return ""  # NL: weight 0, no balance
     config = run.identity["learner_config"]
     legacy = "one_step" if config.get("original_one_step_grudge") else "accumulated"
-    return "" if config.get("grudge", legacy) == "one_step" else "spec balance"
+    grudge = config.get("grudge", legacy)
+    if grudge in ("one_step", default_balance(run.identity["env_id"])):
+        return ""
+    return BALANCE_NAMES.get(grudge, str(grudge))
 
 
 def voi_kind(run: RunRecord) -> str:
@@ -69,11 +90,15 @@ def section(table: RunTable, ctx: Context) -> Section | None:
     out = Section(
         "Reciprocators: baseline vs ADMO (C7) and IPD fidelity",
         text=[
-            "Reciprocator runs use the original code's one-step grudge: on the IPD the "
-            "original's matrix agent (exact VoI, width-2 networks), on gridworlds the learned "
-            "VoI; NL = the same PPO with reciprocal weight 0 (also the self-centered "
-            "adversary). Details and the reasons for the iteration budgets: "
-            f"docs/results/reciprocators.md. {interval_text(r.seeds for r in runs)}."
+            "On the IPD the Reciprocator is the original's matrix agent (exact VoI, "
+            "one-step grudge, width-2 networks, 2 048 games per update); on Escape Room the "
+            "original Escape Room script's learner settings (lr 1e-4, γ 0.99, entropy 0.01, "
+            "w 5, the credit-only petty balance, VoI lr 1e-3) at 128 episodes per update, "
+            "with rows at the script's own batch of one episode per update; on the Stag "
+            "Hunt gridworld the learned VoI with the one-step grudge. NL = the same PPO with "
+            "reciprocal weight 0 (also the self-centered adversary). Details and the reasons "
+            "for the iteration budgets: docs/reciprocators.md, docs/results/reciprocators.md. "
+            f"{interval_text(r.seeds for r in runs)}."
         ],
     )
     grudge = sorted(
@@ -137,13 +162,18 @@ def size(run: RunRecord) -> tuple:
     return tuple(params.get(k) for k in ("n_agents", "n_players", "min_at_lever"))
 
 
-CODE_SETTINGS = {"lr": 1e-4, "gamma": 0.99}
-"""The learner values of the original code's Reciprocator Escape Room run (docs/reciprocators.md;
-with 1 or 128 episodes per update, w 5 and the accumulated balance)."""
+CODE_SETTINGS = {"lr": 1e-4, "gamma": 0.99, "reciprocal_weight": 5.0, "num_envs": 1}
+"""The original code's Reciprocator Escape Room script as it runs (greedy_agent
+`reciprocators/run_er.py`; docs/reciprocators.md): its learner settings, which are pimbot's
+Escape Room defaults, at its own batch of one episode per update."""
+CODE_LOGS = "the original scripts (greedy_agent reciprocators/run_*.py) log no success"
+"""What a C7 disagreement lacks: the original code's Reciprocator scripts, clean and ADMO,
+print the reciprocal reward only."""
 
 
 def is_code_setting(run: RunRecord) -> bool:
-    """A run at the original code's Reciprocator settings, read from its learner config."""
+    """A run at the original code's Reciprocator Escape Room settings and batch of one
+    episode per update, read from its learner config."""
     config = run.identity.get("learner_config", {})
     return all(config.get(k) == v for k, v in CODE_SETTINGS.items())
 
@@ -159,9 +189,9 @@ def setting_label(run: RunRecord) -> str:
 
 
 def primary(runs: list[RunRecord], env: str, condition: str) -> RunRecord | None:
-    """Our setting of `env`: the Reciprocator run (not the counterfactual) that overrides the
-    fewest of the learner's defaults (the suite's own C7 job; the original code's settings
-    override more)."""
+    """Our setting of `env`: the Reciprocator run (not the counterfactual, not the original
+    code's batch of one, not another balance) that overrides the fewest of the learner's
+    defaults (the suite's own C7 job)."""
     mine = [
         r
         for r in runs
@@ -178,47 +208,47 @@ def primary(runs: list[RunRecord], env: str, condition: str) -> RunRecord | None
 
 
 def c7(runs: list[RunRecord]) -> Claim:
-    """C7 as stated: clean ≥ BASELINE everywhere, ADMO below its published bound. A clean ER
-    shortfall is classified by the other settings' runs: the transfer counterfactual solving
-    it means the paper's environment lacks what Reciprocators need; the original code's
-    settings failing too means the paper's own code does not give it."""
+    """C7 as stated: clean ≥ BASELINE everywhere, ADMO below its published bound. Each
+    setting's baseline is its own part (pimbot's defaults, and the original code's batch of
+    one episode per update where it ran), never the best of several runs. A shortfall at the
+    defaults is the paper's environment where the transfer counterfactual solves the room;
+    otherwise, as every disagreement without an original-code log, inconclusive."""
     parts, lines, numbers = {}, [], []
     for env in C7_ENVS:
         clean, admo = primary(runs, env, CLEAN), primary(runs, env, ATTACKED)
-        if clean is None or admo is None:
-            continue
-        base = estimate(clean.per_seed("eval/success"))
-        attacked = estimate(admo.per_seed("eval/success"))
-        lines.append(f"{env}: {base.mean:.2f} → {attacked.mean:.2f}")
-        numbers.append(
-            Comparison(
-                f"{env} clean → ADMO success",
-                f"{clean.iterations:,} updates",
-                f"≥ {BASELINE:g}" + (f" → < {C7_TARGETS[env]:g}" if env in C7_TARGETS else ""),
-                None,
-                f"{base.mean:.2f} → {attacked.mean:.2f}",
+        if clean is not None and admo is not None:
+            base = estimate(clean.per_seed("eval/success"))
+            attacked = estimate(admo.per_seed("eval/success"))
+            lines.append(f"{env}: {base.mean:.2f} → {attacked.mean:.2f}")
+            numbers.append(
+                Comparison(
+                    f"{env} clean → ADMO success",
+                    f"{clean.iterations:,} updates",
+                    f"≥ {BASELINE:g}" + (f" → < {C7_TARGETS[env]:g}" if env in C7_TARGETS else ""),
+                    None,
+                    f"{base.mean:.2f} → {attacked.mean:.2f}",
+                )
             )
-        )
-        if base.mean >= BASELINE:
-            parts[f"{env} baseline"] = verdicts.reproduced(f"{base}")
-        else:
-            parts[f"{env} baseline"] = baseline_shortfall(runs, env, clean, base)
-        if env in C7_TARGETS:
-            bound = C7_TARGETS[env]
-            parts[f"{env} ADMO"] = (
-                verdicts.reproduced(f"{attacked} < {bound:g}")
-                if attacked.mean < bound
-                else judging.disagreement(f"ADMO success {attacked} not < {bound:g}", None)
+            parts[f"{env} baseline"] = (
+                verdicts.reproduced(f"{base}")
+                if base.mean >= BASELINE
+                else baseline_shortfall(runs, clean, base)
             )
+            if env in C7_TARGETS:
+                parts[f"{env} ADMO"] = admo_part(base, attacked, C7_TARGETS[env])
+        for run in code_batch_runs(runs, env):
+            name = f"{env} baseline, {CODE_BATCH}"
+            parts[name if name not in parts else f"{name} ({run.setting})"] = code_batch_part(run)
     counts = {k: sum(v.kind == k for v in parts.values()) for k in verdicts.KINDS}
     return Claim(
         "C7",
         CLAIM_TEXT["C7"],
         f"our setting (the suite's C7 runs): clean Reciprocator mean final success ≥ "
         f"{BASELINE:g} in every env, and ADMO (disrupt) < 0.1 in ER(4,3), IPD(2,3,4), Stag "
-        "Hunt(2,3,4), < 0.3 in ER(4,2); an ER shortfall is classified by the transfer "
-        "counterfactual and the original code's settings",
-        "clean → ADMO: " + "; ".join(lines) + "; " + _parts_text(parts),
+        "Hunt(2,3,4), < 0.3 in ER(4,2); each setting judged on its own runs (pimbot's "
+        f"defaults; ER also at {CODE_BATCH}); an ER shortfall at the defaults is classified "
+        "by the transfer counterfactual",
+        "; ".join((["clean → ADMO: " + "; ".join(lines)] if lines else []) + [_parts_text(parts)]),
         verdicts.combine(parts),
         ", ".join(f"{n} {verdicts.LABELS[k].split(' (')[0]}" for k, n in counts.items() if n)
         + f" of {len(parts)} parts",
@@ -226,52 +256,87 @@ def c7(runs: list[RunRecord]) -> Claim:
     )
 
 
-def baseline_shortfall(runs, env, clean, base) -> verdicts.Verdict:
-    others = [
+CODE_BATCH = "the original code's batch of one episode per update"
+
+
+def admo_part(base, attacked, bound: float) -> verdicts.Verdict:
+    """ADMO (disrupt) success below the published bound where the clean baseline is reached;
+    below it with the baseline not reached, inconclusive (no effect of the attack to see);
+    above it, inconclusive: the original scripts left no log to test against
+    (`judging.disagreement`)."""
+    if attacked.mean < bound and base.mean < BASELINE:
+        return verdicts.inconclusive(
+            f"ADMO success {attacked} < {bound:g}, but clean {base} does not reach "
+            f"{BASELINE:g} either: no effect of the attack to judge"
+        )
+    if attacked.mean < bound:
+        return verdicts.reproduced(f"{attacked} < {bound:g}")
+    return judging.disagreement(f"ADMO success {attacked} not < {bound:g}; {CODE_LOGS}", None)
+
+
+def code_batch_runs(runs: list[RunRecord], env: str) -> list[RunRecord]:
+    """The clean Reciprocator runs of `env` at the original code's Escape Room settings and
+    batch of one episode per update, each a setting of its own."""
+    return sorted(
+        (
+            r
+            for r in runs
+            if r.env == env
+            and r.learner == LEARNER
+            and r.condition == CLEAN
+            and is_code_setting(r)
+            and not is_counterfactual(r)
+            and r.per_seed("eval/success").size
+        ),
+        key=lambda r: r.name,
+    )
+
+
+def code_batch_part(run: RunRecord) -> verdicts.Verdict:
+    """The baseline at the original code's batch of one: reproduced at ≥ BASELINE; below,
+    inconclusive (pimbot at the code's settings, no original-code log to compare with)."""
+    est = estimate(run.per_seed("eval/success"))
+    at = f"{est} after {run.iterations:,} updates of one episode ({run.setting})"
+    if est.mean >= BASELINE:
+        return verdicts.reproduced(at)
+    return judging.disagreement(f"clean {at}; {CODE_LOGS}", None)
+
+
+def baseline_shortfall(runs, clean, base) -> verdicts.Verdict:
+    """A clean shortfall at pimbot's defaults. Where another balance solves the same
+    environment (≥ BASELINE, each run on its own) the environment is not the cause:
+    inconclusive, naming that run. Otherwise the paper's environment where a transfer
+    counterfactual of the same size solves the room; else inconclusive, naming what is
+    missing."""
+    same_size = [
         r
         for r in runs
         if size(r) == size(clean)
         and r.learner == LEARNER
         and r.condition == CLEAN
-        and r is not clean
+        and r.per_seed("eval/success").size
     ]
-    transfer = [r for r in others if is_counterfactual(r)]
-    settings = [
-        r for r in others if is_code_setting(r) and not is_counterfactual(r) and r.env == env
-    ]
-    best = max(
-        (
-            float(r.per_seed("eval/success").mean())
-            for r in transfer
-            if r.per_seed("eval/success").size
-        ),
-        default=None,
-    )
-    if best is not None and best >= BASELINE:
-        return verdicts.refuted(
-            verdicts.PAPER_ENVIRONMENT,
-            f"clean {base}; with a reward-transfer action (counterfactual) {best:.2f}: the "
-            "paper's env has no pay-back channel",
-        )
-    scores = [
-        float(r.per_seed("eval/success").mean())
-        for r in settings
-        if r.per_seed("eval/success").size
-    ]
-    if scores and max(scores) < BASELINE:
-        return verdicts.refuted(
-            verdicts.PAPER_CODE,
-            f"clean {base}; at the original code's settings too: "
-            + ", ".join(f"{v:.2f}" for v in scores),
-        )
-    if scores:
-        return verdicts.refuted(
-            verdicts.BUDGET,
-            f"clean {base} at our setting; at the original code's settings {max(scores):.2f}",
-        )
-    return verdicts.inconclusive(
-        f"clean {base}; no run at the original code's settings and no transfer "
-        "counterfactual that succeeds: no cause can be named"
+    for run in same_size:
+        score = float(run.per_seed("eval/success").mean())
+        if variant(run) and not is_counterfactual(run) and score >= BASELINE:
+            return judging.disagreement(
+                f"clean {base} at pimbot's defaults; with the {variant(run)} "
+                f"({run.setting}) {score:.2f} in the same environment; {CODE_LOGS}",
+                None,
+            )
+    transfer = [r for r in same_size if is_counterfactual(r)]
+    for run in transfer:
+        score = float(run.per_seed("eval/success").mean())
+        if score >= BASELINE:
+            return verdicts.refuted(
+                verdicts.PAPER_ENVIRONMENT,
+                f"clean {base}; with a reward-transfer action (counterfactual, {run.setting}) "
+                f"{score:.2f}: the paper's env has no pay-back channel",
+            )
+    return judging.disagreement(
+        f"clean {base} at pimbot's defaults; no transfer counterfactual that succeeds; "
+        + CODE_LOGS,
+        None,
     )
 
 
@@ -301,7 +366,7 @@ def voi_roles(run: RunRecord) -> str | None:
 def _setting_kind(run: RunRecord) -> str:
     if is_counterfactual(run):
         return " (counterfactual: reward-transfer action)"
-    return " (the original code's settings)" if is_code_setting(run) else ""
+    return f" ({CODE_BATCH})" if is_code_setting(run) else ""
 
 
 def settings_table(runs: list[RunRecord]) -> Table | None:
