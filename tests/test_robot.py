@@ -195,7 +195,7 @@ def test_eval_cli_writes_a_ros2_bag_that_reads_back(trained_er21, tmp_path, caps
     out_json = tmp_path / "eval.json"
     code = main(
         ["robot", "eval", str(trained_er21), "--episodes", "5", "--rosbag", str(bag),
-         "--json", str(out_json)]
+         "--json", str(out_json), "--bag-storage", "mcap", "--ros-distro", "jazzy"]
     )  # fmt: skip
     assert code == 0
     printed = capsys.readouterr().out
@@ -210,13 +210,14 @@ def test_eval_cli_writes_a_ros2_bag_that_reads_back(trained_er21, tmp_path, caps
     cfg = evaluate.physics_config(loaded.resolved)
     replay = evaluate.physics_episodes(loaded, 0, 1, cfg, record_first=True)[0]
     messages = rosbag.read_bag(bag)
+    assert (bag / "episode_bag.mcap").is_file() and "(mcap, jazzy message types)" in printed
     assert set(messages) == {
         cmd_vel_topic(0), cmd_vel_topic(1), odom_topic(0), odom_topic(1),
         rosbag.DECISIONS_TOPIC,
     }  # fmt: skip
     for i in range(2):
         log = [(s, m) for s, topic, m in replay.bus.log if topic == cmd_vel_topic(i)]
-        got = messages[cmd_vel_topic(i)]
+        got = [(s, m.twist) for s, m in messages[cmd_vel_topic(i)]]  # Jazzy: TwistStamped
         assert len(got) == len(log) > 10
         assert [s for s, _ in got] == [s for s, _ in log]
         np.testing.assert_allclose(

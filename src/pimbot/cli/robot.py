@@ -1,8 +1,12 @@
-"""`pimbot robot eval|render`: trained Escape Room runs played by robots in MuJoCo.
+"""`pimbot robot eval|render|serve|world`: trained Escape Room runs played by robots.
 
-pimbot robot eval RUN_DIR --episodes K [--rosbag OUT] [--json OUT] [--nominal-room]
+pimbot robot eval RUN_DIR --episodes K [--rosbag OUT] [--bag-storage mcap|sqlite3]
+                  [--ros-distro humble|jazzy] [--json OUT] [--nominal-room]
 pimbot robot render RUN_DIR --out episode.gif|mp4 [--seed-index S] [--episode E]
                     [--renderer auto|mujoco|matplotlib] [--frame FRAME.png]
+pimbot robot serve RUN_DIR [--ros-distro humble|jazzy] [--domain-id D] [--layout FILE.json]
+                   [--attack NAME --adversary K] [--authenticated] [--audit-log PATH]
+pimbot robot world [--robots N --min-at-lever M] [--domain-id D] [--speed X | --lockstep] [--seed S]
 """
 
 from __future__ import annotations
@@ -38,13 +42,10 @@ def cmd_eval(args) -> int:
 
     episodes = _count("episodes", args.episodes, 1)
     run_dir = _check_run_dir(args.run_dir)
-    if (
-        args.rosbag
-        and Path(args.rosbag).exists()
-        and not (Path(args.rosbag) / "metadata.yaml").exists()
-    ):
-        raise InvalidParameter(f"rosbag: {args.rosbag} exists and is not a ROS 2 bag")
     if args.rosbag:
+        from pimbot.robot import rosbag
+
+        rosbag.check_bag_target(Path(args.rosbag))
         import importlib.util
 
         if importlib.util.find_spec("rosbags") is None:
@@ -86,8 +87,10 @@ def cmd_eval(args) -> int:
     if args.rosbag:
         from pimbot.robot import rosbag
 
-        path = rosbag.write_bag(result.recorded, args.rosbag)
-        print(f"wrote ROS 2 bag {path}")
+        path = rosbag.write_bag(
+            result.recorded, args.rosbag, storage=args.bag_storage, distro=args.ros_distro
+        )
+        print(f"wrote ROS 2 bag {path} ({args.bag_storage}, {args.ros_distro} message types)")
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)  # checked creatable above
         store.write_json(Path(args.json), summary)
@@ -148,4 +151,156 @@ def cmd_render(args) -> int:
         )
         render.write_png(frames[0], Path(args.frame))
         print(f"wrote {args.frame}")
+    return 0
+
+
+def _need_cyclonedds() -> None:
+    import importlib.util
+
+    from pimbot.envs.core import InvalidParameter
+
+    if importlib.util.find_spec("cyclonedds") is None:
+        raise InvalidParameter(
+            "ros: the ROS 2 wire needs the cyclonedds package; pip install 'pimbot[ros]'"
+        )
+
+
+def _write_json(path: str | None, summary: dict) -> None:
+    if path:
+        from pimbot.training import store
+
+        Path(path).parent.mkdir(parents=True, exist_ok=True)  # checked creatable before
+        store.write_json(Path(path), summary)
+        print(f"wrote {path}")
+
+
+def _check_json(path: str | None) -> None:
+    if path:
+        from pimbot.cli.handlers import check_writable
+
+        check_writable("json", Path(path), directory=False)
+
+
+def cmd_world(args) -> int:
+    import numpy as np
+
+    _need_cyclonedds()
+    _check_json(args.json)
+    from pimbot.robot import evaluate
+    from pimbot.robot.episode import PhysicsConfig
+    from pimbot.robot.ros_world import WireConfig, play_world
+
+    overrides = evaluate.parse_physics_overrides(list(args.physics))
+    if args.nominal_room:
+        overrides["randomize_layout"] = False
+    cfg = PhysicsConfig(n_robots=args.robots, min_at_lever=args.min_at_lever, **overrides)
+    wire = WireConfig(
+        args.ros_distro,
+        args.domain_id,
+        0.0 if args.lockstep else args.speed,
+        args.command_timeout,
+        args.timeout,
+    )
+    print(
+        f"world: {cfg.n_robots} robots on DDS domain {wire.domain_id} ({wire.distro}), "
+        "waiting for a controller",
+        flush=True,
+    )
+    summary = play_world(cfg, wire, np.random.default_rng([20261, args.seed])).summary()
+    print(
+        f"world: {summary['ended']} after {summary['ticks']} control periods "
+        f"({summary['sim_seconds']:.1f} s simulated, {summary['wall_s']:.1f} s wall); "
+        f"messages sent {summary['messages']['sent']}, received "
+        f"{summary['messages']['received']}; command answer {summary['answer_ms_median']:.2f} "
+        f"ms median, {summary['answer_ms_p95']:.2f} ms p95"
+    )
+    _write_json(args.json, summary)
+    return 0 if summary["ended"] == "controller done" else 1
+
+
+def _audit_log(args, run_dir: Path):
+    """The serve command's audit log (its first record written), or None."""
+    if args.audit_log is None:
+        if args.audit_key is not None:
+            from pimbot.envs.core import InvalidParameter
+
+            raise InvalidParameter("audit_key: given without --audit-log PATH")
+        return None
+    from pimbot.defenses.audit import AuditError, AuditLog, writer_key
+    from pimbot.envs.core import InvalidParameter
+
+    try:
+        key, _ = writer_key(args.audit_log, args.audit_key)
+        log = AuditLog(args.audit_log, key)
+        log.append(
+            "serve",
+            run_dir=str(run_dir),
+            seed_index=args.seed_index,
+            ros_distro=args.ros_distro,
+            domain_id=args.domain_id,
+            authenticated=args.authenticated,
+            attack=args.attack,
+            adversary=args.adversary if args.attack else None,
+        )
+    except AuditError as error:
+        raise InvalidParameter(str(error)) from None
+    return log
+
+
+def cmd_serve(args) -> int:
+    from pimbot.envs.core import InvalidParameter
+
+    _need_cyclonedds()
+    run_dir = _check_run_dir(args.run_dir)
+    _check_json(args.json)
+    from pimbot import jax_setup
+
+    jax_setup.enable_compilation_cache()  # before JAX compiles the run's programs
+    from pimbot.robot import evaluate, serve
+    from pimbot.robot.ros_world import WireConfig, layout_from_json
+
+    wire = WireConfig(args.ros_distro, args.domain_id)
+    layout = None
+    if args.layout:
+        try:
+            layout = layout_from_json(Path(args.layout).read_text())
+        except OSError as error:
+            raise InvalidParameter(f"layout: {args.layout}: {error.strerror}") from None
+    loaded = evaluate.load_run(run_dir)
+    if args.seed_index >= len(loaded.seeds):
+        raise InvalidParameter(
+            f"seed_index: must be in [0, {len(loaded.seeds) - 1}], got {args.seed_index}"
+        )
+    if args.attack:
+        loaded = serve.with_attack(loaded, args.attack, args.adversary)
+    cfg = evaluate.physics_config(
+        loaded.resolved, **evaluate.parse_physics_overrides(list(args.physics))
+    )
+    audit = _audit_log(args, run_dir)
+    policy = serve.trained_policy(loaded, args.seed_index)
+    label = evaluate.run_label(loaded.resolved)
+    print(
+        f"serve: {label}, seed {loaded.seeds[args.seed_index]}, on DDS domain "
+        f"{wire.domain_id} ({wire.distro})",
+        flush=True,
+    )
+    timing = serve.ServeConfig(
+        args.authenticated, odometry_timeout=args.timeout, layout_timeout=args.timeout
+    )
+    try:
+        report = serve.serve_episode(policy, cfg, wire, timing, layout, audit)
+    finally:
+        if audit is not None:
+            audit.close()
+    summary = report.summary()
+    outcome = "success" if report.success else "no success"
+    print(f"serve: {summary['steps']} decision steps, {outcome}; actions {report.actions}")
+    print(
+        f"serve: decision latency {summary['decision_ms_mean']:.1f} ms mean, "
+        f"{summary['decision_ms_max']:.1f} ms max; incentive messages {report.incentives_sent} "
+        f"sent, {report.incentives_accepted} accepted, rejected {report.rejected or 0}; "
+        f"DDS messages sent {report.messages['sent']}, received {report.messages['received']}; "
+        f"{report.sim_seconds:.1f} s simulated, {report.wall_s:.1f} s wall"
+    )
+    _write_json(args.json, summary)
     return 0
