@@ -26,6 +26,7 @@ VALID = {  # a value that parses for each required argument, so the probe hits o
     "suite_dir": "no_such_suite",
     "grid": "no_such_grid.toml",
     "log": "no_such_log",
+    "file": "no_such_plugin.py",
     "out": "{out}",
 }
 

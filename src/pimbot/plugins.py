@@ -14,6 +14,10 @@ imported under a stable name derived from its absolute path, so a spawned
 sweep worker that loads the same list gets the same module. `load_plugins`
 returns that list (paths made absolute) for the workers.
 
+What was loaded is recorded with every run (`provenance`: each plugin's file and sha256 in
+config.json "plugins"), and a run reloaded from its directory (`pimbot train --from`)
+names a recorded plugin that this process has not loaded (`missing`).
+
 A plugin that fails is one line naming its file and line: one that cannot be imported
 (`PluginError`), one whose registration breaks its contract (an error that says where,
 `pimbot.contracts.conformance.ContractError`, passed on as it is), and an exception raised
@@ -181,6 +185,57 @@ def loaded_files() -> list[str]:
     """The source files of the plugins this process has loaded."""
     files = [getattr(module, "__file__", None) for module in _LOADED.values()]
     return [f for f in files if f]
+
+
+def file_sha256(path: str | Path) -> str | None:
+    """The sha256 (hex) of a file's bytes; None if it cannot be read."""
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError:
+        return None
+
+
+def provenance() -> list[dict[str, str | None]]:
+    """What this process has loaded, for a run's config.json: one record per plugin, in
+    load order: ``{"plugin": how it was named (entry point, module or path), "file": its
+    source file, "sha256": the file's digest}`` (file and sha256 None where unknown)."""
+    records = []
+    for key, module in _LOADED.items():
+        file = getattr(module, "__file__", None)
+        file = str(Path(file).resolve()) if file else None
+        records.append({"plugin": key, "file": file, "sha256": file_sha256(file) if file else None})
+    return records
+
+
+def missing(recorded: Iterable[dict]) -> list[tuple[str, str]]:
+    """The plugins in `recorded` (a run's config.json "plugins") that this process has not
+    loaded, neither from the recorded file nor from a file with the recorded sha256: (the
+    file, or the plugin's name where none was recorded; how that file stands now:
+    unchanged, changed since (its sha256 then and now), or gone)."""
+    now = provenance()
+    files = {r["file"] for r in now if r["file"]}
+    digests = {r["sha256"] for r in now if r["sha256"]}
+    absent = []
+    for record in recorded:
+        if not isinstance(record, dict):
+            continue
+        file, digest = record.get("file"), record.get("sha256")
+        if (file and file in files) or (digest and digest in digests):
+            continue
+        absent.append((str(file or record.get("plugin") or "?"), _file_state(file, digest)))
+    return absent
+
+
+def _file_state(file: str | None, digest: str | None) -> str:
+    """How a recorded plugin file stands now: unchanged, changed (sha256 then → now), gone."""
+    if not file:
+        return "no file recorded"
+    current = file_sha256(file)
+    if current is None:
+        return "the file no longer exists"
+    if digest and current != digest:
+        return f"the file has changed since: sha256 {digest[:12]}… then, {current[:12]}… now"
+    return f"sha256 {current[:12]}…, unchanged"
 
 
 def failure_line(error: BaseException) -> str | None:

@@ -28,6 +28,7 @@ from pimbot.analysis.runs import (  # noqa: E402
     condition_label,
     env_label,
 )
+from pimbot.analysis.tables import check_metrics  # noqa: E402
 from pimbot.training import store  # noqa: E402
 
 RANDOM_POLICY = {
@@ -241,11 +242,22 @@ def incentive_updates(config: dict[str, Any]) -> str | None:
     return None
 
 
-def plot_runs(run_dirs: list[Path], out: Path, columns=("eval/success", "eval/return_ratio")):
-    """`pimbot plot`: one panel per metric column, one line per run (its mean over seeds
-    and its band, in one colour in every panel; a run that did not log a column is left
-    out of its panel). The legend under the panels names the runs and what the bands are."""
+PLOTTED = ("eval/success", "eval/return_ratio")
+"""The columns `pimbot plot` draws unless `--metric` names others."""
+
+
+def plot_runs(run_dirs: list[Path], out: Path, metrics: tuple[str, ...] = ()) -> None:
+    """`pimbot plot`: one panel per metric column (`metrics`, any column of metrics.csv;
+    none named: `PLOTTED`), one line per run (its mean over seeds and its band, in one
+    colour in every panel; a run that did not log a column is left out of its panel). The
+    legend under the panels names the runs and what the bands are.
+
+    Raises:
+        InvalidParameter: a name in `metrics` no run logged (nothing is written).
+    """
     runs = [(read_curves(run_dir), run_label(run_dir)) for run_dir in run_dirs]
+    check_metrics(metrics, [curves for curves, _ in runs])
+    columns = metrics or PLOTTED
     fig, axes = plt.subplots(1, len(columns), figsize=(6 * len(columns), 4), squeeze=False)
     drawn = []
     for ax, column in zip(axes[0], columns, strict=True):

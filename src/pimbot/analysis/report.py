@@ -38,7 +38,15 @@ from pimbot.analysis.document import (
     iterations_text,
     seeds_text,
 )
-from pimbot.analysis.sections import attacks, defenses, device, generic, reciprocators, stag_hunt
+from pimbot.analysis.sections import (
+    attacks,
+    defenses,
+    device,
+    generic,
+    reciprocators,
+    scorecard,
+    stag_hunt,
+)
 from pimbot.analysis.tables import Table, write_csv
 from pimbot.suites import sweep
 from pimbot.training import store
@@ -51,12 +59,14 @@ PROVIDERS: list[Provider] = [
     stag_hunt.section,
     reciprocators.section,
     defenses.section,
+    scorecard.section,
     generic.section,
     device.profile_section,
     device.robot_section,
 ]
 """Report sections in order; each returns None when its runs are absent. The generic one
-reports the training runs the paper sections before it did not claim."""
+reports the training runs the paper sections before it did not claim (the scorecard, which
+compares every training run, claims none)."""
 
 
 PROVENANCE_FIELDS = (
@@ -65,6 +75,7 @@ PROVENANCE_FIELDS = (
     ("JAX version", "jax_version"),
     ("JAX backend", "jax_backend"),
     ("devices", "devices"),
+    ("plugins", "plugins"),
 )
 """(row label, config.json key) of the provenance table: what every run records."""
 
@@ -84,7 +95,25 @@ def _provenance_value(config: dict, key: str) -> str:
     value = config.get(key)
     if value is None:
         return "not recorded"
+    if key == "plugins" and isinstance(value, list):  # config.json's plugin records
+        return ", ".join(_plugin_text(p) for p in value) or "none"
     return ", ".join(map(str, value)) if isinstance(value, list | tuple) else str(value)
+
+
+def _plugin_text(record: object) -> str:
+    """A plugin as the provenance table names it: its file (or name) and sha256's start."""
+    if not isinstance(record, dict):
+        return str(record)
+    name, digest = record.get("file") or record.get("plugin"), record.get("sha256")
+    return f"{name} (sha256 {digest[:12]})" if digest else str(name)
+
+
+def _suites_text(index: dict) -> str:
+    """The suites that wrote into the directory: "suite 'a'", or "suites 'a', 'b'"."""
+    names = sweep.suite_names(index)
+    if len(names) <= 1:
+        return f"suite {index.get('suite')!r}"
+    return "suites " + ", ".join(repr(n) for n in names)
 
 
 def provenance(table: run_table.RunTable, ctx: Context, when: str) -> Section:
@@ -93,7 +122,7 @@ def provenance(table: run_table.RunTable, ctx: Context, when: str) -> Section:
     jobs = ctx.index.get("jobs", [])
     text = [
         f"Read from the config.json of the {len(table.records)} finished training run(s) and "
-        f"from {sweep.INDEX} ({len(jobs)} jobs, suite {ctx.index.get('suite')!r}); generated "
+        f"from {sweep.INDEX} ({len(jobs)} jobs, {_suites_text(ctx.index)}); generated "
         f"{when}."
     ]
     budget = Table(

@@ -15,13 +15,17 @@ import dataclasses
 import html
 import io
 import re
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from pimbot import statistics
+from pimbot.analysis.curves import Curves, read_curves
+from pimbot.errors import InvalidParameter
 from pimbot.training import store
+from pimbot.training.summary import FINAL_WINDOW
 
 MISSING = "–"
 INTERVAL = "[interval]"
@@ -144,6 +148,72 @@ def write_csv(table: Table, path: Path) -> None:
     store.write_atomic(path, buffer.getvalue().encode())
 
 
+# --- any metrics.csv column: `--metric`, plugins' metrics ------------------------------
+
+ROW_KEYS = ("iteration", "seed")
+"""metrics.csv columns that say where a row is, not what was measured."""
+PER_AGENT = re.compile(r"^(.*)/agent_(\d+)$")
+
+
+def metric_columns(curves: Iterable[Curves]) -> list[str]:
+    """Every measured column of the runs' metrics.csv, in order of first appearance."""
+    seen: dict[str, None] = {}
+    for run in curves:
+        seen.update((c, None) for c in run.columns if c not in ROW_KEYS)
+    return list(seen)
+
+
+def columns_text(columns: list[str]) -> str:
+    """The columns, comma-separated; a metric's per-agent columns written once, as
+    `NAME/agent_0…K`."""
+    agents: dict[str, list[int]] = {}
+    for column in columns:
+        match = PER_AGENT.match(column)
+        if match:
+            agents.setdefault(match[1], []).append(int(match[2]))
+    out: dict[str, None] = {}
+    for column in columns:
+        match = PER_AGENT.match(column)
+        indices = sorted(agents[match[1]]) if match else []
+        if len(indices) > 1:
+            column = f"{match[1]}/agent_{indices[0]}…{indices[-1]}"
+        out[column] = None
+    return ", ".join(out)
+
+
+def check_metrics(metrics: Iterable[str], curves: list[Curves]) -> None:
+    """Raises InvalidParameter (one line listing the columns there are) for a name in
+    `metrics` that no run's metrics.csv has."""
+    available = metric_columns(curves)
+    for name in metrics:
+        if name not in available:
+            raise InvalidParameter(
+                f"metric: no column {name!r} in the runs' metrics.csv; available: "
+                f"{columns_text(available)}"
+            )
+
+
+def final_per_seed(curves: Curves, column: str) -> np.ndarray:
+    """Per seed, the mean of the finite values among the last FINAL_WINDOW evaluations of
+    `column` (a NaN an attack logs for "not yet" is left out; a seed with none is
+    dropped); [] where the run did not log it."""
+    if not curves.has(column):
+        return np.array([])
+    out = []
+    for seed in curves.seeds:
+        last = np.asarray(curves.values[seed][column][-FINAL_WINDOW:], dtype=float)
+        last = last[np.isfinite(last)]
+        if last.size:
+            out.append(float(last.mean()))
+    return np.array(out)
+
+
+def final_estimate(curves: Curves, column: str, digits: int = 3) -> Estimate | None:
+    """The final value of any metrics.csv column with its interval over seeds (None: not
+    logged, or never finite)."""
+    return estimate(final_per_seed(curves, column), digits)
+
+
 # --- `pimbot table` --------------------------------------------------------------------
 
 
@@ -153,14 +223,20 @@ def _final(summary: dict, column: str) -> Estimate | None:
     return None if entry is None else estimate(np.array(entry["per_seed"]))
 
 
-def summary_table(run_dirs: list[Path]) -> str:
-    """One row per run: final success, return ratio, team return, convergence, speed."""
+def summary_table(run_dirs: list[Path], metrics: tuple[str, ...] = ()) -> str:
+    """One row per run: final success, return ratio, team return, convergence, speed, and
+    the final value of every column named in `metrics` (any column of metrics.csv).
+
+    Raises:
+        InvalidParameter: a name in `metrics` no run logged (before anything is made).
+    """
     from pimbot.analysis.plots import run_label
-    from pimbot.training import store
     from pimbot.training.summary import summarize
 
+    curves = [read_curves(run_dir) for run_dir in run_dirs] if metrics else []
+    check_metrics(metrics, curves)
     rows = []
-    for run_dir in run_dirs:
+    for k, run_dir in enumerate(run_dirs):
         # Final metrics and convergence recomputed from metrics.csv (the primary record).
         summary = {**store.read_json(run_dir / store.SUMMARY), **summarize(run_dir)}
         conv = summary["convergence"]
@@ -176,6 +252,7 @@ def summary_table(run_dirs: list[Path]) -> str:
                 f"{fmt(conv['median'], 0)} {iqr}",
                 fmt(conv["first_crossing_median"], 0),
                 fmt(summary["iters_per_s_mean"], 0),  # None: not timed (an original-code log)
+                *(final_estimate(curves[k], metric) for metric in metrics),
             ]
         )
     header = [
@@ -188,6 +265,7 @@ def summary_table(run_dirs: list[Path]) -> str:
         "convergence median [IQR]",
         "first crossing median",
         "it/s",
+        *(f"final {metric} {INTERVAL}" for metric in metrics),
     ]
     lines = markdown_lines(Table(header, rows))[:-1]
     return "\n".join(lines + ["", statistics.interval_text(row[2] for row in rows)]) + "\n"

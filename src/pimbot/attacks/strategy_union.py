@@ -11,6 +11,7 @@ jobs by the key after this folding.
 
 from __future__ import annotations
 
+import inspect
 from typing import Any, ClassVar
 
 import jax
@@ -34,9 +35,11 @@ def _weak(x: Any) -> bool:
 def shareable(attack: Attack) -> bool:
     """Whether `attack` may be folded into `Strategies`: no learning step and no per-seed
     state of its own (the members' states must share one structure; a stateful plugin
-    attack, e.g. one growing its incentive in `observe`, gets its own program)."""
+    attack, e.g. one growing its incentive in `observe`, gets its own program), and no
+    metrics of its own (`Attack.metrics`: the members' would differ in their names)."""
     stateless = type(attack).init_state is Attack.init_state and "observe" not in attack.hooks
-    return "adversary_step" not in attack.hooks and stateless
+    silent = inspect.unwrap(type(attack).metrics) is Attack.metrics
+    return "adversary_step" not in attack.hooks and stateless and silent
 
 
 @struct.dataclass

@@ -123,6 +123,9 @@ class Parsed:
         """Raises UsageError unless every registry name is registered (plugins loaded) and
         InvalidParameter on a value out of range; a bad name from a file says so."""
         if self.defaults is not None:
+            from pimbot.cli.handlers import check_from_plugins
+
+            check_from_plugins(getattr(self.command, "from_run", None))  # before its names
             check_names(self.defaults, self.source)
         check_names(self.command)
         self.command.check()

@@ -23,6 +23,7 @@ import tyro
 from pimbot.cli.robot import RENDERERS
 from pimbot.contracts.params import check_number
 from pimbot.errors import InvalidParameter, check_int
+from pimbot.robot.rosbag import BAG_STORAGES, ROS_DISTROS
 
 PAIRS = "pimbot:name=value"
 """Marks a field holding `name=value` strings; a --config file may give it a table."""
@@ -80,6 +81,8 @@ _PositionalPairs = Annotated[
 ]
 _Runs = Annotated[tuple[str, ...], tyro.conf.Positional, tyro.conf.arg(metavar="RUN")]
 _EnvId = Annotated[str, tyro.conf.arg(metavar="ENV_ID"), Registered("envs")]
+_Metrics = Annotated[_Repeated, tyro.conf.arg(metavar="NAME")]
+"""Names of metrics.csv columns (`eval/success`, `attack/NAME/…`), repeatable."""
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -226,6 +229,8 @@ class Table(Command):
 
     run_dirs: _Runs
     """Run directories."""
+    metric: _Metrics = ()
+    """Add a column of this metric's final value (any metrics.csv column; repeatable)."""
 
     def run(self, plugins: tuple[str, ...]) -> int:
         from pimbot.cli import handlers
@@ -241,6 +246,9 @@ class Plot(Command):
     """Run directories."""
     out: Annotated[str, tyro.conf.arg(metavar="FILE.png")]
     """PNG file to write."""
+    metric: _Metrics = ()
+    """Plot this metric (any metrics.csv column; repeatable, one panel each); none:
+    eval/success and eval/return_ratio."""
 
     def run(self, plugins: tuple[str, ...]) -> int:
         from pimbot.cli import handlers
@@ -367,6 +375,38 @@ class Report(Command):
         return handlers.cmd_report(self)
 
 
+CHECK_ENV = "escape_room-v0"
+"""The env `pimbot check` runs attacks, defenses and learners on where the file has none."""
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Check(Command):
+    """A canary run of a plugin file: is each hook called, and does it change anything?"""
+
+    file: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="FILE.py")]
+    """The plugin file (or module) to check; loaded as --plugin loads it."""
+    env: Annotated[str | None, tyro.conf.arg(metavar="ENV_ID"), Registered("envs")] = None
+    """Env of the runs; None: the file's own env if it registers one, else escape_room-v0."""
+    learner: Annotated[str | None, tyro.conf.arg(metavar="NAME"), Registered("learners")] = None
+    """Learner of the runs; None: the file's, else the default, else the first that fits."""
+    defense_attack: Annotated[str | None, tyro.conf.arg(metavar="NAME"), Registered("attacks")] = (
+        "fake_incentive"
+    )
+    """Check each defense under this attack as well as clean (None: clean only)."""
+    seeds: int = 2
+    """Seeds of each canary run (≥ 1)."""
+    iterations: int = 20
+    """Training iterations of each canary run (≥ 1)."""
+
+    def int_bounds(self) -> dict[str, int]:
+        return {"seeds": 1, "iterations": 1}
+
+    def run(self, plugins: tuple[str, ...]) -> int:
+        from pimbot.cli.check import cmd_check
+
+        return cmd_check(self)
+
+
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class Envs(Command):
     """List the environments, their parameters (defaults, meaning) and learner defaults."""
@@ -442,6 +482,10 @@ class RobotEval(RobotRun):
     """Episodes per seed (≥ 1)."""
     rosbag: Annotated[str | None, tyro.conf.arg(metavar="DIR")] = None
     """Write the first seed's first episode as a ROS 2 bag (pip install 'pimbot[rosbag]')."""
+    bag_storage: Literal[BAG_STORAGES] = "mcap"
+    """The bag's storage: mcap (rosbag2's default since Iron) or sqlite3 (Humble's)."""
+    ros_distro: Literal[ROS_DISTROS] = "jazzy"
+    """The bag's message types: jazzy (cmd_vel as TwistStamped) or humble (plain Twist)."""
     json: Annotated[str | None, tyro.conf.arg(metavar="FILE")] = None
     """Write the results as JSON to this file."""
     physics: Annotated[tuple[str, ...], tyro.conf.arg(metavar="NAME=VALUE"), PAIRS] = ()
@@ -480,6 +524,121 @@ class RobotRender(RobotRun):
         return cmd_render(self)
 
 
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class RobotWire(Command):
+    """Options of the commands on the ROS 2 wire (DDS through cyclonedds, no ROS needed)."""
+
+    ros_distro: Literal[ROS_DISTROS] = "jazzy"
+    """The cmd_vel type: jazzy (TwistStamped, TurtleBot3 on Jazzy) or humble (Twist)."""
+    domain_id: int = 0
+    """The DDS domain (ROS_DOMAIN_ID); Cyclone DDS itself is configured by CYCLONEDDS_URI."""
+    json: Annotated[str | None, tyro.conf.arg(metavar="FILE")] = None
+    """Write the results as JSON to this file."""
+    physics: Annotated[tuple[str, ...], tyro.conf.arg(metavar="NAME=VALUE"), PAIRS] = ()
+    """Episode settings, e.g. decision_time_limit=15 settle_time=1."""
+
+    def int_bounds(self) -> dict[str, int]:
+        return {"domain_id": 0}
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class RobotServe(RobotWire):
+    """Drive robots on ROS 2 topics with a trained run: odom in, cmd_vel out, per robot."""
+
+    run_dir: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="RUN_DIR")]
+    """A pimbot run directory of escape_room-v0."""
+    seed_index: int = 0
+    """Which seed of the run (≥ 0)."""
+    layout: Annotated[str | None, tyro.conf.arg(metavar="FILE.json")] = None
+    """The room as JSON (what /pimbot/layout carries); None: wait for it on that topic."""
+    attack: Annotated[str | None, tyro.conf.arg(metavar="NAME"), Registered("attacks")] = None
+    """Apply this attack live (default parameters) instead of the run's own."""
+    adversary: int = 0
+    """The manipulated robot of --attack (≥ 0)."""
+    authenticated: bool = False
+    """Sign incentive messages (HMAC-SHA256, per-pair keys) and verify them on receipt."""
+    audit_log: Annotated[str | None, tyro.conf.arg(metavar="PATH")] = None
+    """Append a keyed (HMAC-SHA256) audit record of every decision to this file."""
+    audit_key: Annotated[str | None, tyro.conf.arg(metavar="FILE")] = None
+    """The audit key file; None: $PIMBOT_AUDIT_KEY_FILE, else ~/.config/pimbot/audit.key."""
+    timeout: float = 60.0
+    """Wall seconds to wait for the room and for odometry before giving up."""
+
+    def int_bounds(self) -> dict[str, int]:
+        return {"domain_id": 0, "seed_index": 0, "adversary": 0}
+
+    def positive_numbers(self) -> tuple[str, ...]:
+        return ("timeout",)
+
+    def run(self, plugins: tuple[str, ...]) -> int:
+        from pimbot.cli.robot import cmd_serve
+
+        return cmd_serve(self)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class RobotWorld(RobotWire):
+    """The MuJoCo robots on ROS 2 topics (cmd_vel in, odom out) for `pimbot robot serve`."""
+
+    robots: int = 2
+    """N, the robots (≥ 2)."""
+    min_at_lever: int = 1
+    """M, robots in the lever zone that hold the gate open (1 ≤ M < N)."""
+    seed: int = 0
+    """The room's randomness (layout, start poses, noise)."""
+    nominal_room: bool = False
+    """The fixed room instead of a random layout."""
+    speed: float = 1.0
+    """Real-time factor (> 0; 1 = real time)."""
+    lockstep: bool = False
+    """Step as soon as every robot's command answers the last odometry (ignores --speed)."""
+    command_timeout: float = 1.0
+    """Wall seconds a control period waits for the commands before stepping without them."""
+    timeout: float = 600.0
+    """Wall seconds after which the world stops if the controller has not ended."""
+
+    def int_bounds(self) -> dict[str, int]:
+        return {"domain_id": 0, "robots": 2, "min_at_lever": 1, "seed": 0}
+
+    def positive_numbers(self) -> tuple[str, ...]:
+        return ("speed", "command_timeout", "timeout")
+
+    def run(self, plugins: tuple[str, ...]) -> int:
+        from pimbot.cli.robot import cmd_world
+
+        return cmd_world(self)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Export(Command):
+    """Each agent's trained policy (and incentive function) of one seed as ONNX + policy.json."""
+
+    run_dir: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="RUN_DIR")]
+    """A finished or checkpointed pimbot run directory."""
+    out: Annotated[str, tyro.conf.arg(metavar="DIR")]
+    """Directory to write: new, empty, or a previous export (replaced)."""
+    seed: Annotated[int | None, tyro.conf.arg(metavar="SEED")] = None
+    """Which seed of the run (≥ 0); None: its first seed."""
+
+    def int_bounds(self) -> dict[str, int]:
+        return {"seed": 0}
+
+    def run(self, plugins: tuple[str, ...]) -> int:
+        from pimbot.robot.export import export_run
+
+        sidecar = export_run(self.run_dir, self.out, self.seed)
+        files = [a[k]["file"] for a in sidecar["agents"] for k in ("policy", "incentive") if a[k]]
+        print(f"wrote {self.out}: {', '.join(files)}, policy.json")
+        print(f"seed {sidecar['seed']}, iteration {sidecar['iteration']}")
+        parity = sidecar["parity"]
+        largest = ", ".join(f"{k} {v:.2g}" for k, v in parity["max_abs_difference"].items())
+        print(
+            f"onnxruntime vs pimbot on {parity['observations_per_agent']} observations per "
+            f"agent, largest difference: {largest}"
+        )
+        return 0
+
+
 COMMANDS: dict[tuple[str, ...], type[Command]] = {
     ("train",): Train,
     ("sweep",): Sweep,
@@ -488,6 +647,7 @@ COMMANDS: dict[tuple[str, ...], type[Command]] = {
     ("table",): Table,
     ("plot",): Plot,
     ("profile",): Profile,
+    ("check",): Check,
     ("envs",): Envs,
     ("learners",): Learners,
     ("attacks",): Attacks,
@@ -495,6 +655,9 @@ COMMANDS: dict[tuple[str, ...], type[Command]] = {
     ("audit", "verify"): AuditVerify,
     ("robot", "eval"): RobotEval,
     ("robot", "render"): RobotRender,
+    ("robot", "serve"): RobotServe,
+    ("robot", "world"): RobotWorld,
+    ("export",): Export,
 }
 """Every command path and the class that parses and runs it: the one dispatch table."""
 

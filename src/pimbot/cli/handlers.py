@@ -83,6 +83,33 @@ def _run_config(args):
     )
 
 
+def check_from_plugins(run_dir: str | None) -> None:
+    """`train --from RUN_DIR`: every plugin the run's config.json records is loaded (by its
+    file, or a file with its sha256), else one line naming the missing files and how each
+    stands now (changed since, gone).
+
+    Raises:
+        UsageError: ``from: RUN_DIR/config.json: the run was made with plugin FILE (...),
+        which is not loaded; add --plugin FILE``.
+    """
+    from pimbot import plugins
+    from pimbot.training import store
+
+    if run_dir is None:
+        return
+    path = Path(run_dir) / store.CONFIG
+    config = store.read_json(path) if path.is_file() else None
+    recorded = config.get("plugins") if isinstance(config, dict) else None
+    absent = plugins.missing(recorded if isinstance(recorded, list) else [])
+    if absent:
+        named = "; ".join(f"{file} ({state})" for file, state in absent)
+        hint = " ".join(f"--plugin {file}" for file, _ in absent)
+        raise UsageError(
+            f"from: {path}: the run was made with plugin {named}, which "
+            f"{'is' if len(absent) == 1 else 'are'} not loaded; add {hint}"
+        )
+
+
 def cmd_train(args) -> int:
     from pimbot.training import memory, runner, store
     from pimbot.training.config import resolve
@@ -155,7 +182,7 @@ def _finished_runs(paths: list[str]):
 def cmd_table(args) -> int:
     from pimbot.analysis.tables import summary_table
 
-    print(summary_table(_finished_runs(args.run_dirs)), end="")
+    print(summary_table(_finished_runs(args.run_dirs), tuple(args.metric)), end="")
     return 0
 
 
@@ -164,7 +191,7 @@ def cmd_plot(args) -> int:
 
     runs = _finished_runs(args.run_dirs)
     check_writable("out", Path(args.out), directory=False)
-    plot_runs(runs, Path(args.out))
+    plot_runs(runs, Path(args.out), tuple(args.metric))
     print(f"wrote {args.out}")
     return 0
 
@@ -226,23 +253,20 @@ def cmd_profile(args) -> int:
     return 0
 
 
-def _run_suite(jobs, args, suite_name: str, loaded: tuple[str, ...]) -> int:
-    """`--list` or run `jobs` into `args.out` (the machinery of reproduce and sweep)."""
+def _run_suite(jobs, args, suite_name: str, loaded: tuple[str, ...], skipped=()) -> int:
+    """`--list` or run `jobs` into `args.out` (the machinery of reproduce and sweep); the
+    grid cells `skipped` are listed, recorded in index.json and not run."""
     from pimbot.suites import sweep
-    from pimbot.suites.jobs import KINDS
 
     if args.ray_address is not None and args.backend != "ray":
         raise UsageError("ray_address: given without --backend ray")
     check_writable("out", Path(args.out), directory=True)
     log = _log_backends(args)
     try:
-        jobs = sweep.select(jobs, list(args.only))
+        jobs = sweep.select(jobs, list(args.only), skipped)
+        skipped = sweep.matching(skipped, list(args.only))
         if args.list:
-            statuses = sweep.plan(jobs, Path(args.out))
-            width = max([36] + [len(job.name) + 1 for job in jobs])
-            for job in jobs:
-                what = KINDS[job.kind].describe(job.spec)
-                print(f"{job.name:<{width}} {job.kind:<10} {statuses[job.name]:<9} {what}")
+            _list_plan(jobs, skipped, sweep.plan(jobs, Path(args.out)))
             return 0
         options = sweep.SweepOptions(
             backend=args.backend,
@@ -253,7 +277,7 @@ def _run_suite(jobs, args, suite_name: str, loaded: tuple[str, ...]) -> int:
             plugins=loaded,
             log=log,
         )
-        result = sweep.run(jobs, args.out, suite_name, options)
+        result = sweep.run(jobs, args.out, suite_name, options, skipped)
     except sweep.SweepError as error:
         raise UsageError(str(error)) from None
     finished = sum(e["status"] == "finished" for e in result.index["jobs"])
@@ -266,10 +290,25 @@ def _run_suite(jobs, args, suite_name: str, loaded: tuple[str, ...]) -> int:
     )
     if result.ran and result.programs and args.quiet:  # else the progress display shows it
         print(f"{args.out}: {sweep.programs_line(result.programs)}")
+    if skipped:
+        print(f"{args.out}: {len(skipped)} cells skipped (see --list or {args.out}/index.json)")
     if result.failed:
         print(f"failed: {', '.join(result.failed)} (see {args.out}/index.json)", file=sys.stderr)
         return 1
     return 0
+
+
+def _list_plan(jobs, skipped, statuses: dict[str, str]) -> None:
+    """`--list`: one line per job (name, kind, status, what it runs), then one per skipped
+    cell (name, "skipped", why)."""
+    from pimbot.suites.jobs import KINDS
+
+    width = max([36] + [len(item.name) + 1 for item in [*jobs, *skipped]])
+    for job in jobs:
+        what = KINDS[job.kind].describe(job.spec)
+        print(f"{job.name:<{width}} {job.kind:<10} {statuses[job.name]:<9} {what}")
+    for cell in skipped:
+        print(f"{cell.name:<{width}} {'train':<10} {'skipped':<9} {cell.reason}")
 
 
 def cmd_reproduce(args, loaded: tuple[str, ...]) -> int:
@@ -282,8 +321,9 @@ def cmd_reproduce(args, loaded: tuple[str, ...]) -> int:
 def cmd_sweep(args, loaded: tuple[str, ...]) -> int:
     from pimbot.suites import grid
 
-    spec, jobs = grid.load_jobs(args.grid)  # every job resolved: nothing written on bad input
-    return _run_suite(jobs, args, spec.name, loaded)
+    spec, jobs, skipped = grid.load_jobs(args.grid)  # all resolved: nothing written on bad input
+    loaded += tuple(p for p in spec.plugins if p not in loaded)  # the workers load them too
+    return _run_suite(jobs, args, spec.name, loaded, skipped)
 
 
 def cmd_report(args) -> int:

@@ -18,6 +18,12 @@ in `hooks`, so a learner that does not consult a hook refuses it by name:
                        shaped-reward weight, before a multi-epoch update (the
                        Reciprocator's PPO), given an `AdversaryView` of the batch.
 
+Besides the hooks, an attack may report numbers of its per-seed state with `metrics`
+(read at every evaluation by the training runner from the learner state's `attack_state`,
+and written to metrics.csv as `attack/<name>/<metric>`: `state_metrics`). It is no hook
+point: a learner need not consult it, and an attack without a learning step logs through it
+too.
+
 Every hook gets the attack's per-seed state (`init_state`, kept in the learner
 state) and, where randomness may be needed, its own PRNG key, derived from the
 learner's keys without consuming them (clean streams stay bit-identical).
@@ -259,6 +265,20 @@ class Attack:
         del key, outcome
         return state
 
+    def metrics(self, state: Any) -> dict[str, jax.Array]:
+        """Numbers of the attack's per-seed `state` to log at every evaluation: name ->
+        a number [] (or [N], one per agent). Default: none.
+
+        Read by the training runner after each evaluation period (`state_metrics`, from
+        the learner state's `attack_state`) and written to metrics.csv as
+        `attack/<attack name>/<name>` (`/agent_<i>` added per agent); `pimbot table
+        --metric`, `pimbot plot --metric` and the report's sweep section show them. A
+        value may be non-finite (a "not yet" NaN): like the attack's state, it is not
+        taken for divergence. Keep names and shapes fixed: they are metrics.csv's columns.
+        """
+        del state
+        return {}
+
     def update_schedule(
         self, state: Any, key: jax.Array, view: AdversaryView, ordinary_epochs: int
     ) -> UpdateSchedule:
@@ -298,6 +318,34 @@ def register(cls: type[Attack], *, replace: bool = False) -> type[Attack]:
     registered = ATTACKS.register_hooked_class(cls, Attack, HOOKS, replace=replace)
     conformance.install_checks(cls, Attack, OUTPUT_CHECKS)
     return registered
+
+
+STATE_METRICS = "attack/"
+"""Namespace of the metrics.csv columns an attack's `metrics` writes: `attack/<name>/…`."""
+
+
+def state_metrics(attack: Attack, learner_state: Any, num_agents: int) -> dict[str, jax.Array]:
+    """The attack's `metrics` of the state a learner keeps for it (the learner state's
+    `attack_state` field, as every built-in learner keeps it), each float32 [] or [N];
+    none where the learner keeps no attack state.
+
+    Raises:
+        ContractError: `metrics` returned something else than a dict of numbers [] or [N],
+            one line at the attack's file and line.
+    """
+    state = getattr(learner_state, "attack_state", None)
+    if state is None:
+        return {}
+    out = attack.metrics(state)
+    problem = conformance.metrics_problem(out, num_agents)
+    if problem:
+        raise conformance.hook_error(attack, type(attack).metrics, "metrics", problem)
+    return {str(name): jnp.asarray(value, jnp.float32) for name, value in out.items()}
+
+
+def state_metric_prefix(attack_name: str) -> str:
+    """The metrics.csv prefix of the state metrics of attack `attack_name`."""
+    return f"{STATE_METRICS}{attack_name}/"
 
 
 def parameters(cls: type[Attack]) -> dict[str, Any]:
@@ -385,6 +433,7 @@ OUTPUT_CHECKS: dict[str, conformance.OutputCheck | None] = {
     "adversary_step": _adversary_step_problem,
     "observe": _observe_problem,
     "update_schedule": _update_schedule_problem,
+    "metrics": None,  # checked where it is read, knowing N (`state_metrics`)
     "init_state": None,  # any pytree: an exception inside it is still one line
     "validate": None,
 }

@@ -119,7 +119,7 @@ def member_location(cls: type, name: str) -> str:
 # --- registration: hooks listed ⇔ overridden, no near-miss names, static text fields -----
 
 
-OVERRIDABLE = ("init_state", "validate")
+OVERRIDABLE = ("init_state", "validate", "metrics")
 """Methods of `Attack` and `Defense` besides the hooks that a plugin overrides (their
 near misses are refused too, and an exception inside them is one line)."""
 

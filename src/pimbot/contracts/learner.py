@@ -5,13 +5,78 @@
     evaluate(key, state, env, cfg, episodes, attack)  -> per-episode metrics [episodes, ...]
     acting(env, cfg, state)                           -> Actor: the policy at ε = 0
 
-A learner lists the attack and defense hook points it consults; a run that
-needs one it lacks is refused naming the hook. Per-environment defaults are
-declared by env id, never sniffed from env attributes: in the learner's registry
-entry (`LearnerDef.env_defaults`, `env_params`; `set_env_defaults` and
-`set_env_params` add them later, for any env id, built-in or a plugin's), or, for
-a plugin env registered after the learner, in the env's registration
-(`EnvSpec.learner_defaults`, `learner_env_defaults`); the learner's entry wins.
+A learner is registered with `register(LearnerDef(...))`, by pimbot's own (`pimbot.learners`)
+and by a plugin alike (docs/extending.md, "(e) A learner": the worked example
+`examples/plugins/actor_critic.py`). The runner (`pimbot.training.runner`) vmaps `init`
+over seeds, scans `update` for an evaluation period, then calls `evaluate`, all inside one
+compiled program; `cfg` is static (a frozen dataclass), `attack`, `defenses` and `env` are
+pytrees whose numbers are traced.
+
+**The state** (one seed's; a `flax.struct.dataclass` of arrays, checkpointed with
+`flax.serialization` and resumed from) holds everything the learner learns (parameters,
+optimizer states), its PRNG key (all randomness comes from the state: a resumed run goes
+on identically), and the fields the runner reads by name:
+
+* `iteration`: int32 [], +1 per `update` (the evaluation key and metrics.csv's column);
+* `attack_state`: what `attack.init_state(attack_key(key), N, AgentParams(adversary's
+  row, its incentive row or {}))` returned in `init`, replaced only by the attack's
+  `observe` and `adversary_step` (read for the attack's `metrics`; its non-finite values
+  are no divergence);
+* `defense_state`: the tuple `pimbot.contracts.defense.init_states(defenses, N, policy)`,
+  replaced by what the defense hooks return;
+* by convention `env_steps`: int32 [], environment steps taken in training (the
+  `env_step0` of `rollout`, `Outcome.env_steps`).
+
+**The hook points it calls itself.** Nothing calls a hook for the learner; `attack_hooks`
+and `defense_hooks` list exactly those its `update` / `evaluate` consult (`pimbot
+learners` shows them; a run whose attack or defense acts elsewhere is refused naming the
+hook). Attack hooks (`pimbot.contracts.attack`), each with the attack's per-seed state and
+a key from `attack_key` (derived, never consumed):
+
+* `act` (and `emit` where the learner has an incentive channel): consulted at every step
+  by `pimbot.contracts.rollout.rollout(env, key, act, give, attack, env_steps,
+  attack_state)`: play every training and evaluation episode through it;
+* `learning_rewards(state, env_rewards, received)`: the reward of every agent's policy
+  step (`received`: zeros without a channel);
+* `policy_sign(state, N)`: multiplies every agent's policy step (−1 reverses it, 0
+  freezes it: scale the optimizer's step, not the gradient, where momentum would move a
+  frozen agent);
+* `adversary_step(state, key, view)`, where "adversary_step" is in `attack.hooks`: the
+  adversary's new ω replaces its row (a learning attack, ADMO), given an `AdversaryView`;
+* `observe(state, key, Outcome(success, iteration, env_steps))`, once per iteration;
+* `update_schedule`, for a multi-epoch learner only (the Reciprocator's PPO epochs).
+
+Defense hooks (`pimbot.contracts.defense`), folded over the run's defenses, with
+`honest_agents(attack, N)` (the adversary runs none): `acting_epsilon` (the ε every agent
+acts and learns with), `learning_incentives` (what recipients accept) and
+`after_policy_step`.
+
+**ADMO** (`admo`, `pimbot.attacks.admo`) needs `policy_sign` (it freezes the adversary's
+ordinary step) and `adversary_step`, and of the `AdversaryView` the learner builds: the
+stacked `policy` [N, ...] (the adversary's row is θ_a, as `init_state` was given it),
+`log_probs(θ_a) -> [B..., T]` differentiable in θ_a on the batch just played, its
+`env_rewards` [B..., T, N], `valid`, `received` / `received_valid` (zeros without a
+channel), `success`, `gamma`, `iteration`. Without an incentive channel `incentive`,
+`emitted` and `meta_pullback` are None and `emission_scales` is (): ADMO then trains θ_a
+alone. With one, `incentive` is the stacked η, `emitted(η_a)` the batch's incentives
+recomputed from η_a, and `meta_pullback` the gradient through the recipients' updates
+(LIO's, `pimbot.learners.lio`); ADMO's budget acts at `emit` where the learner has it.
+
+**Evaluation**: `evaluate` plays `episodes` episodes at ε = 0 through `rollout`, the
+attack acting as in training, and returns `episode_metrics` of each ([episodes] or
+[episodes, N]: `success`, `team_return`, `return_env`, `return_total`, ... which the
+runner averages into the `eval/` columns and the adversary's margins). `update`'s metrics
+are float32 [] or [N] named `train/...` (and the attack's own, e.g. `admo/...`): the
+runner writes their mean over each evaluation period.
+
+**Per-environment defaults** are declared by env id, never sniffed from env attributes:
+in the learner's registry entry (`LearnerDef.env_defaults`, `env_params`; `set_env_defaults`
+and `set_env_params` add them later, for any env id, built-in or a plugin's, from any
+plugin, without registering the learner again), or, for a plugin env registered after the
+learner, in the env's registration (`EnvSpec.learner_defaults`, `learner_env_defaults`);
+the learner's entry wins, `base_overrides` over both, `--hp` over everything. Each is
+checked where it is declared: a name that is no hyperparameter, or a value of another type,
+is one line naming the file and line.
 """
 
 from __future__ import annotations
@@ -36,22 +101,35 @@ class Actor:
 
 @dataclasses.dataclass(frozen=True)
 class LearnerDef:
-    """What every command needs of a learner."""
+    """What every command needs of a learner (the module docstring says what each function
+    and the state must do; `examples/plugins/actor_critic.py` is a complete one)."""
 
     name: str
+    """`--learner NAME`; unique among the registered learners."""
     description: str
+    """One line for `pimbot learners`."""
     config_cls: type
-    """Frozen dataclass of hyperparameters; its defaults are the learner's base config."""
+    """Frozen dataclass of hyperparameters; its defaults are the learner's base config. Each
+    field's docstring is its `--hp` help; `RANGES: ClassVar[dict]` (name -> (low, high))
+    bounds numbers, the others must be ≥ 0 (`pimbot.contracts.params.check_fields`)."""
     init: Callable
+    """init(key, env, cfg, attack, defenses) -> state of one seed (module docstring)."""
     update: Callable
+    """update(state, env, cfg, attack, defenses) -> (state, metrics): one iteration."""
     evaluate: Callable
+    """evaluate(key, state, env, cfg, episodes, attack) -> per-episode metrics."""
     acting: Callable[[Any, Any, Any], Actor]
+    """acting(env, cfg, state) -> Actor: the trained policy at ε = 0 (robot, profiling)."""
     attack_hooks: tuple[str, ...]
-    """Attack hook points the learner consults (`pimbot.contracts.attack.HOOKS`)."""
+    """Attack hook points the learner consults (`pimbot.contracts.attack.HOOKS`): exactly
+    those its code calls. A run whose attack lists a hook point not here is refused, one
+    line naming it and the attacks usable with this learner."""
     defense_hooks: tuple[str, ...] = ()
-    """Defense hook points the learner consults (`pimbot.contracts.defense.HOOKS`)."""
+    """Defense hook points the learner consults (`pimbot.contracts.defense.HOOKS`); a run
+    with a defense acting elsewhere is refused naming the hook."""
     has_incentives: bool = False
-    """Whether the learner has an incentive channel (agents pay each other rewards)."""
+    """Whether the learner has an incentive channel (agents pay each other rewards, passed
+    to `rollout` as `give`; it then consults `emit`)."""
     base_overrides: tuple[tuple[str, Any], ...] = ()
     """Changes to `config_cls()` that make this learner (e.g. `nl`: reciprocal weight 0),
     applied after the per-env defaults."""
@@ -98,8 +176,11 @@ LEARNERS: Registry[LearnerDef] = Registry("learner", "learner")
 
 
 def register(definition: LearnerDef, *, replace: bool = False) -> LearnerDef:
-    """Registers a learner under `definition.name`; the defaults it declares (per env id,
-    and `base_overrides`) must name its hyperparameters with values of their types.
+    """Registers a learner under `definition.name`, a built-in's or a plugin's alike; the
+    defaults it declares (per env id, and `base_overrides`) must name its hyperparameters
+    with values of their types. Registering a name again fails unless `replace`: to declare
+    defaults for another env later (built-in or a plugin's), call `set_env_defaults` /
+    `set_env_params` instead.
 
     Raises:
         InvalidParameter: a default that is no hyperparameter, or of the wrong type.

@@ -25,6 +25,7 @@ from typing import Any
 import jax
 
 from pimbot.contracts import conformance
+from pimbot.contracts.attack import state_metrics
 from pimbot.contracts.conformance import ContractError, PluginCodeError
 from pimbot.contracts.learner import LEARNERS, check_hparams
 from pimbot.envs import check_env
@@ -157,7 +158,8 @@ def check_run(learner, env, config, attack, defenses, eval_episodes: int) -> Non
     def one_iteration(key):
         state = learner.init(key, env, config, attack, defenses)
         state, metrics = learner.update(state, env, config, attack, defenses)
-        return learner.evaluate(key, state, env, config, eval_episodes, attack), metrics
+        logged = state_metrics(attack, state, env.num_agents)  # as the runner reads them
+        return learner.evaluate(key, state, env, config, eval_episodes, attack), metrics, logged
 
     try:
         jax.eval_shape(one_iteration, jax.random.PRNGKey(0))

@@ -5,6 +5,8 @@
 training groups are grids too (`presets`). A grid file (TOML)::
 
     name = "my_grid"        # optional; default: the file name. Jobs run in DIR/<name>/...
+    plugins = ["my_attack.py"]  # optional: plugins to load, like --plugin (a .py path is
+                            # relative to this file; a dotted name is a module)
     seeds = 3               # seeds per run
     iterations = 2000       # training iterations per run (an env may set its own)
     eval_period = 100       # optional: iterations between evaluations (default: the env's)
@@ -43,6 +45,12 @@ are sanitised for directory names and an empty label (``label = ""``) leaves
 its axis out of the name. `load` checks every field and `validate` resolves
 every job (`config.resolve`) before anything is written; a bad field fails
 with one line naming it and the allowed values.
+
+A grid may mix learners with different hook points: a cell whose attack or
+defense acts at a hook point its learner does not have
+(`config.IncompatibleHooks`) is skipped, not run, and listed with its reason
+(`pimbot sweep --list`, index.json "skipped", the report). A grid whose every
+cell is skipped is refused.
 """
 
 from __future__ import annotations
@@ -54,9 +62,11 @@ from pathlib import Path
 from typing import Any
 
 from pimbot import attacks, defenses, envs, learners
+from pimbot import plugins as plugin_loader
+from pimbot.contracts import preflight
 from pimbot.envs.core import InvalidParameter
-from pimbot.suites.jobs import Job
-from pimbot.training.config import RunConfig, coerce_like, resolve
+from pimbot.suites.jobs import Job, Skipped
+from pimbot.training.config import IncompatibleHooks, RunConfig, coerce_like, resolve
 
 Pairs = tuple[tuple[str, Any], ...]
 CLEAN = "none"
@@ -139,6 +149,8 @@ class Grid:
     eval_period: int | None = None
     eval_episodes: int | None = None
     first_seed: int = 0
+    plugins: tuple[str, ...] = ()
+    """The plugins the grid file names, loaded (`plugins.load_plugins`'s canonical names)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -230,17 +242,30 @@ def expand(grid: Grid) -> list[Job]:
     return [cell.job for cell in expand_cells(grid)]
 
 
-def validate(jobs: list[Job]) -> None:
+def validate(jobs: list[Job]) -> list[Skipped]:
     """Resolves every job's RunConfig (env, learner, attack, defenses, budget together).
 
+    Returns:
+        The jobs to skip: those whose attack or defense acts at a hook point their
+        learner does not have, each with its one-line reason.
+
     Raises:
-        GridError: ``<job name>: <field>: <why; allowed values>``.
+        GridError: ``<job name>: <field>: <why; allowed values>``; or every job skipped.
     """
+    skipped = []
     for job in jobs:
         try:
             resolve(job.spec)
+        except IncompatibleHooks as error:
+            skipped.append(Skipped(job.name, error.reason))
         except InvalidParameter as error:
             raise GridError(f"{job.name}: {error}") from None
+    if jobs and len(skipped) == len(jobs):
+        raise GridError(
+            f"grid: every cell is incompatible ({len(jobs)} cells), e.g. {skipped[0].name}: "
+            f"{skipped[0].reason}"
+        )
+    return skipped
 
 
 # --- the grid file -------------------------------------------------------------------------
@@ -256,6 +281,7 @@ TOP_FIELDS = (
     "learners",
     "attacks",
     "defenses",
+    "plugins",
 )
 ENV_FIELDS = ("id", "params", "label", "iterations", "eval_period", "hparams")
 LEARNER_FIELDS = ("name", "hparams", "label")
@@ -408,8 +434,9 @@ def _defense(table: Any, where: str) -> DefenseEntry:
     return DefenseEntry(tuple(stack), label=r.text("label"))
 
 
-def parse(data: dict[str, Any], default_name: str) -> Grid:
-    """A `Grid` from a parsed grid file; every entry checked against the registries.
+def parse(data: dict[str, Any], default_name: str, plugins: tuple[str, ...] = ()) -> Grid:
+    """A `Grid` from a parsed grid file; every entry checked against the registries (its
+    `plugins`, loaded by `load_grid_plugins`, are recorded as they are).
 
     Raises:
         GridError: the first bad field, named (``attacks[1].params: mode: ...``).
@@ -431,6 +458,7 @@ def parse(data: dict[str, Any], default_name: str) -> Grid:
         eval_period=r.integer("eval_period", 1),
         eval_episodes=r.integer("eval_episodes", 1),
         first_seed=r.integer("first_seed", 0) or 0,
+        plugins=plugins,
     )
     replace = {}
     if attack_entries := entries("attacks", _attack, False):
@@ -456,12 +484,43 @@ def load(path: str | Path) -> Grid:
         raise GridError(f"grid: {path} is not valid TOML: {error}") from None
     except UnicodeDecodeError:
         raise GridError(f"grid: {path} is not valid TOML: not UTF-8 text") from None
-    return parse(data, default_name=path.stem)
+    plugins = load_grid_plugins(data.get("plugins"), path)
+    return parse(data, default_name=path.stem, plugins=plugins)
 
 
-def load_jobs(path: str | Path) -> tuple[Grid, list[Job]]:
-    """The grid in `path` and its jobs, every one resolved (nothing is written)."""
+def load_grid_plugins(names: Any, path: Path) -> tuple[str, ...]:
+    """Loads the plugins a grid file names (``plugins = [...]``: a .py path relative to the
+    grid file, or a dotted module name) like --plugin, and checks what they registered.
+
+    Returns:
+        Their canonical names (what a sweep's workers load).
+
+    Raises:
+        GridError: not a list of strings, or a file that does not exist.
+        PluginError, ContractError: a plugin that cannot be imported or breaks its contract.
+    """
+    if names is None:
+        return ()
+    if not isinstance(names, list) or not all(isinstance(n, str) and n.strip() for n in names):
+        raise GridError(f"plugins: must be a list of .py paths or module names, got {names!r}")
+    modules = []
+    for k, name in enumerate(names):
+        if plugin_loader.is_path(name):
+            file = (path.parent / Path(name).expanduser()).resolve()
+            if not file.is_file():
+                raise GridError(f"plugins[{k}]: no such file {file} (relative to {path})")
+            name = str(file)
+        modules.append(name)
+    loaded = plugin_loader.load_plugins(modules, from_env=False)
+    preflight.check_plugins()  # what they registered, before any job is planned
+    return loaded
+
+
+def load_jobs(path: str | Path) -> tuple[Grid, list[Job], list[Skipped]]:
+    """The grid in `path`, the jobs to run (every one resolved; nothing is written) and the
+    cells skipped (`validate`)."""
     grid = load(path)
     jobs = expand(grid)
-    validate(jobs)
-    return grid, jobs
+    skipped = validate(jobs)
+    names = {s.name for s in skipped}
+    return grid, [job for job in jobs if job.name not in names], skipped

@@ -41,6 +41,17 @@ class Job:
 
 
 @dataclasses.dataclass(frozen=True)
+class Skipped:
+    """A cell of a grid that is not run, and why (index.json "skipped", `sweep --list`, the
+    report): its attack or defense acts at a hook point its learner does not have."""
+
+    name: str
+    """The job name the cell would have had (`<group>/<setting>`)."""
+    reason: str
+    """One line."""
+
+
+@dataclasses.dataclass(frozen=True)
 class JobOptions:
     """How every job of a suite runs (the same for all of them); none of it changes results."""
 

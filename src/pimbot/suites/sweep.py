@@ -1,6 +1,7 @@
 """Runs a suite of jobs into one directory, on a local process pool or a Ray cluster.
 
-    DIR/index.json            the plan: every job, its config, status and wall time
+    DIR/index.json            the plan: every job, its config, status and wall time;
+                              the grid cells skipped and why; every suite that wrote here
     DIR/<group>/<setting>/    one run directory per job (as `pimbot train` writes it)
 
 Both backends call the same `execute_job` on the same job and write the same
@@ -32,7 +33,7 @@ from typing import Any
 
 from pimbot import plugins as plugin_loader
 from pimbot.envs.core import InvalidParameter
-from pimbot.suites.jobs import KINDS, Job, JobConflict, JobOptions
+from pimbot.suites.jobs import KINDS, Job, JobConflict, JobOptions, Skipped
 from pimbot.training import store
 
 INDEX = "index.json"
@@ -68,12 +69,30 @@ class SweepOptions:
         return JobOptions(chunk_iterations=self.chunk_iterations, log=self.log)
 
 
-def select(jobs: list[Job], patterns: Iterable[str] | None) -> list[Job]:
-    """The jobs whose names match any of the shell-style `patterns` (all if None)."""
+def matching(names: Iterable[Any], patterns: Iterable[str] | None) -> list[Any]:
+    """The jobs (or `Skipped` cells) whose names match any of the shell-style `patterns`
+    (all if None or empty)."""
+    patterns = list(patterns or [])
+    return [n for n in names if not patterns or any(fnmatch.fnmatch(n.name, p) for p in patterns)]
+
+
+def select(
+    jobs: list[Job], patterns: Iterable[str] | None, skipped: Iterable[Skipped] = ()
+) -> list[Job]:
+    """The jobs whose names match any of the shell-style `patterns` (all if None).
+
+    Raises:
+        SweepError: no job matches (naming the skipped cells that do, if any).
+    """
     patterns = list(patterns or [])
     if not patterns:
         return jobs
-    chosen = [j for j in jobs if any(fnmatch.fnmatch(j.name, p) for p in patterns)]
+    chosen = matching(jobs, patterns)
+    if not chosen and (passed := matching(skipped, patterns)):
+        raise SweepError(
+            f"only: every cell matching {', '.join(patterns)} is skipped ({len(passed)} cells), "
+            f"e.g. {passed[0].name}: {passed[0].reason}"
+        )
     if not chosen:
         groups = sorted({j.group for j in jobs})
         raise SweepError(
@@ -403,8 +422,10 @@ def run(
     suite_dir: str | Path,
     suite_name: str,
     options: SweepOptions = SweepOptions(),
+    skipped: Iterable[Skipped] = (),
 ) -> SweepResult:
-    """Runs every job not yet finished; returns the index (also written to DIR/index.json)."""
+    """Runs every job not yet finished; returns the index (also written to DIR/index.json,
+    with the grid cells `skipped`)."""
     suite_dir = Path(suite_dir)
     if options.backend not in BACKENDS:
         raise InvalidParameter(
@@ -413,7 +434,7 @@ def run(
     statuses = plan(jobs, suite_dir)
     check_dependencies(jobs, statuses, suite_dir)
     suite_dir.mkdir(parents=True, exist_ok=True)
-    index = start_index(jobs, statuses, suite_dir, suite_name)
+    index = start_index(jobs, statuses, suite_dir, suite_name, skipped)
 
     todo = [job for job in jobs if statuses[job.name] != "finished"]
     workers, devices = workers_and_devices(options, len(todo))
@@ -439,10 +460,15 @@ def run(
 
 
 def start_index(
-    jobs: list[Job], statuses: dict[str, str], suite_dir: Path, suite_name: str
+    jobs: list[Job],
+    statuses: dict[str, str],
+    suite_dir: Path,
+    suite_name: str,
+    skipped: Iterable[Skipped] = (),
 ) -> dict[str, Any]:
     """The index a sweep starts from, written: every job of `jobs` with its status (and
-    its wall time from an earlier sweep), and the jobs of earlier sweeps as they were."""
+    its wall time from an earlier sweep), and the jobs of earlier sweeps as they were; the
+    cells skipped (this sweep's and earlier sweeps' other cells); every suite that wrote."""
     previous = read_index(suite_dir) or {}
     entries = {e["name"]: e for e in previous.get("jobs", [])}
     for job in jobs:
@@ -452,11 +478,34 @@ def start_index(
         entries[job.name] = entry
     index = {
         "suite": suite_name,
+        "suites": [*(n for n in suite_names(previous) if n != suite_name), suite_name],
         "pimbot_version": _version(),
         "jobs": sorted(entries.values(), key=lambda e: e["name"]),
     }
+    if listed := skipped_entries(previous, skipped, set(entries)):
+        index["skipped"] = listed
     write_index(suite_dir, index)
     return index
+
+
+def suite_names(index: dict[str, Any]) -> list[str]:
+    """Every suite (grid or preset) that wrote into a suite directory, earliest first (an
+    index written before "suites" was recorded: its one "suite")."""
+    names = index.get("suites")
+    if isinstance(names, list):
+        return [str(n) for n in names]
+    return [str(index["suite"])] if index.get("suite") else []
+
+
+def skipped_entries(
+    previous: dict[str, Any], skipped: Iterable[Skipped], jobs: set[str]
+) -> list[dict[str, str]]:
+    """index.json "skipped": the cells skipped now, and those an earlier sweep skipped that
+    are neither skipped now nor jobs now, by name."""
+    now = {s.name: {"name": s.name, "reason": s.reason} for s in skipped}
+    earlier = [e for e in previous.get("skipped", []) if isinstance(e, dict) and "name" in e]
+    kept = {e["name"]: e for e in earlier if e["name"] not in now and e["name"] not in jobs}
+    return sorted((kept | now).values(), key=lambda e: e["name"])
 
 
 def workers_and_devices(options: SweepOptions, jobs_to_run: int) -> tuple[int, int]:

@@ -169,10 +169,21 @@ def check_hooks(field: str, name: str, needed, consulted, learner: str, others) 
     missing = [hook for hook in needed if hook not in consulted]
     if missing:
         usable = [other for other, hooks in others.items() if set(hooks) <= set(consulted)]
-        raise InvalidParameter(
-            f"{field}: {name} acts at the hook point(s) {', '.join(missing)}, which learner "
-            f"{learner} does not have; usable with {learner}: {', '.join(usable) or 'none'}"
+        acts = f"{name} acts at the hook point(s) {', '.join(missing)}, which learner {learner}"
+        raise IncompatibleHooks(
+            f"{field}: {acts} does not have; usable with {learner}: {', '.join(usable) or 'none'}",
+            reason=f"{'attack' if field == 'attack' else 'defense'} {acts} does not have",
         )
+
+
+class IncompatibleHooks(InvalidParameter):
+    """A run whose attack or defense acts at a hook point its learner does not have. A grid
+    skips such a cell, listing `reason`, instead of refusing the whole grid."""
+
+    def __init__(self, message: str, reason: str = ""):
+        super().__init__(message)
+        self.reason = reason or message
+        """One line without the field's prefix and the hint: why the cell cannot run."""
 
 
 def coerce_like(name: str, value: Any, default: Any) -> Any:

@@ -38,8 +38,10 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 import pimbot
+from pimbot import plugins
 from pimbot.attacks import strategy_union
 from pimbot.contracts import preflight
+from pimbot.contracts.attack import STATE_METRICS, state_metric_prefix, state_metrics
 from pimbot.envs.core import InvalidParameter, program_env
 from pimbot.training import programs, store, tracking
 from pimbot.training.config import ResolvedRun, RunConfig, env_parameters, resolve
@@ -63,6 +65,9 @@ class Diverged(RuntimeError):
 OWN_STATES = (".attack_state", ".defense_state")
 """State fields an attack or defense owns; they may hold non-finite sentinels (e.g. an
 empty history), so only the learner's own parameters and optimizer states are checked."""
+UNCHECKED_COLUMNS = ("perf/", STATE_METRICS)
+"""metrics.csv columns a non-finite value of which is no divergence: timings, and the
+numbers an attack reports of its own state (`Attack.metrics`, which may be a sentinel)."""
 
 
 def first_non_finite(rows: list[dict[str, Any]], host_states) -> str | None:
@@ -71,7 +76,7 @@ def first_non_finite(rows: list[dict[str, Any]], host_states) -> str | None:
     optimizer state is; None when everything is finite."""
     for row in sorted(rows, key=lambda r: (r["iteration"], r["seed"])):
         for column, value in row.items():
-            if not column.startswith("perf/") and not math.isfinite(value):
+            if not column.startswith(UNCHECKED_COLUMNS) and not math.isfinite(value):
                 return f"iteration {row['iteration']}, seed {row['seed']}: {column} = {value}"
     leaves = jax.tree_util.tree_leaves_with_path(host_states)
     for path, leaf in leaves:
@@ -141,6 +146,9 @@ def make_chunk_fn(resolved: ResolvedRun, num_periods: int):
     leaves are traced and whose structure is static, so runs that differ only in numbers
     share the program. (An env without traced numbers is passed as None and closed over.)
 
+    Each evaluation row holds the evaluation's means ("eval"), the period's mean training
+    metrics ("train") and the attack's metrics of its state ("attack", `state_metrics`).
+
     Returns fn(states [S], eval_roots [S], attack, defenses, env, optimum numbers) ->
     (states, metrics with leaves [S, num_periods, ...]).
     """
@@ -164,6 +172,7 @@ def make_chunk_fn(resolved: ResolvedRun, num_periods: int):
                 "iteration": state.iteration,
                 "eval": reduce_eval(env, per_episode, attack.adversary, numbers),
                 "train": jax.tree.map(lambda x: x.mean(axis=0), train),
+                "attack": state_metrics(attack, state, env.num_agents),
             }
             return state, row
 
@@ -221,15 +230,21 @@ class ProgramCache:
 
 
 def metric_rows(resolved: ResolvedRun, chunk_metrics, seeds: list[int], perf: dict) -> list[dict]:
-    """Flattens chunk metrics [S, E, ...] into CSV rows, one per seed × evaluation point."""
+    """Flattens chunk metrics [S, E, ...] into CSV rows, one per seed × evaluation point
+    (the attack's state metrics under `attack/<its name>/`)."""
     host = jax.device_get(chunk_metrics)
     n = resolved.env.num_agents
+    groups = (
+        ("eval", "eval/"),
+        ("train", ""),
+        ("attack", state_metric_prefix(resolved.attack.name)),
+    )
     rows = []
     for s, seed in enumerate(seeds):
         for e in range(host["iteration"].shape[1]):
             row: dict[str, Any] = {"iteration": int(host["iteration"][s, e]), "seed": seed}
-            for group, prefix in (("eval", "eval/"), ("train", "")):
-                for name, value in host[group].items():
+            for group, prefix in groups:
+                for name, value in host.get(group, {}).items():
                     value = value[s, e]
                     if np.ndim(value) == 1 and value.shape[0] == n:
                         for agent in range(n):
@@ -265,6 +280,7 @@ def run_metadata(resolved: ResolvedRun) -> dict[str, Any]:
         "jax_version": jax.__version__,
         "jax_backend": jax.default_backend(),
         "devices": [str(d) for d in jax.devices()],
+        "plugins": plugins.provenance(),  # each loaded plugin's file and sha256
     }
 
 

@@ -16,7 +16,15 @@ from pimbot.analysis.runs import (
     distinct_env_labels,
     natural_key,
 )
-from pimbot.analysis.tables import INTERVAL, Table, difference, estimate
+from pimbot.analysis.tables import (
+    INTERVAL,
+    PER_AGENT,
+    Table,
+    difference,
+    estimate,
+    final_estimate,
+)
+from pimbot.contracts.attack import state_metric_prefix
 from pimbot.statistics import interval_text
 
 STYLES = ("-", "--", ":", "-.")
@@ -36,15 +44,61 @@ def section(table: RunTable, ctx: Context) -> Section | None:
             f"{seeds_text(rest)}; {interval_text(r.seeds for r in rest)}; margin = the "
             "adversary's env return minus "
             "the mean of the others'; Δ = this run − the clean run of the same env, learner "
-            "and defenses (seeds resampled independently)."
+            "and defenses (seeds resampled independently). Metrics a run's attack, defenses "
+            "or learner logged under their own names (`attack/NAME/…`, `defense/NAME/…`, "
+            "`learner/NAME/…`: a plugin's, an attack's state metrics) have a table of their "
+            "own per group; `pimbot plot --metric` and `pimbot table --metric` show any column."
         ],
     )
     for group in sorted({r.group for r in rest}):
-        figure, result = group_results(table, [r for r in rest if r.group == group], group, ctx)
+        mine = [r for r in rest if r.group == group]
+        figure, result = group_results(table, mine, group, ctx)
         if figure is not None:
             out.figures.append(figure)
         out.tables.append(result)
+        logged = own_metrics_table(mine, group)
+        if logged is not None:
+            out.tables.append(logged)
     return out
+
+
+def own_namespaces(run: RunRecord) -> tuple[str, ...]:
+    """The metrics.csv prefixes of what `run`'s attack, defenses and learner log under their
+    own names: `attack/NAME/` (where an attack's `metrics` go), `defense/NAME/`,
+    `learner/NAME/`."""
+    defenses = [name for name, _ in run.config.get("run_config", {}).get("defenses", ())]
+    prefixes = [f"defense/{name}/" for name in defenses] + [f"learner/{run.learner}/"]
+    if run.attack:
+        prefixes.append(state_metric_prefix(run.attack))
+    return tuple(prefixes)
+
+
+def own_metrics(run: RunRecord) -> list[str]:
+    """`run`'s metric columns in its parts' own namespaces (`own_namespaces`), without the
+    per-agent ones (`pimbot plot --metric` draws those)."""
+    prefixes = own_namespaces(run)
+    return [c for c in run.curves.columns if c.startswith(prefixes) and not PER_AGENT.match(c)]
+
+
+def own_metrics_table(runs: list[RunRecord], group: str) -> Table | None:
+    """The final value, with its interval, of every metric the group's runs logged under
+    their own names (`own_metrics`), per run; None where no run logged one."""
+    logged = {run.name: own_metrics(run) for run in runs}
+    columns = list(dict.fromkeys(c for names in logged.values() for c in names))
+    if not columns:
+        return None
+    envs = distinct_env_labels(runs)
+    rows = [
+        [envs[run.env_key], learner_label(run), run.defenses, run.condition]
+        + [final_estimate(run.curves, c) if c in logged[run.name] else None for c in columns]
+        + [run.setting]
+        for run in sorted(runs, key=lambda r: sort_key(r, envs))
+    ]
+    header = ["env", "learner", "defenses", "condition"]
+    header += [f"final {c} {INTERVAL}" for c in columns] + ["run"]
+    title = f"{group}: metrics the runs' attacks, defenses and learners logged"
+    slug = re.sub(r"[^A-Za-z0-9_.-]+", "_", group)
+    return Table(header, rows, title, name=f"{slug}_own_metrics")
 
 
 def learner_label(run: RunRecord) -> str:

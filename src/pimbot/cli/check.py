@@ -1,0 +1,39 @@
+"""`pimbot check FILE.py`: load a plugin file, run its canary, print the table.
+
+Exit status 0 when every hook of every part ran and changed what the learner does (and
+every learner and env trained), 1 with one line per problem otherwise, 2 for bad input
+(no such file, a file that registers nothing: `pimbot.training.canary`).
+"""
+
+from __future__ import annotations
+
+from pimbot import plugins
+from pimbot.cli.commands import CHECK_ENV, Check
+
+
+def cmd_check(args: Check) -> int:
+    """Runs the canary of `args.file`; its exit status."""
+    plugins.load_plugins([args.file], from_env=False)
+    path = getattr(plugins.load(args.file), "__file__", None) or plugins.canonical(args.file)
+    from pimbot.contracts import preflight
+    from pimbot.training import canary
+
+    preflight.check_plugins()  # a broken env is one line before any run
+    options = canary.Options(
+        default_env=CHECK_ENV,
+        env=args.env,
+        learner=args.learner,
+        defense_attack=args.defense_attack,
+        size=canary.Size(seeds=args.seeds, iterations=args.iterations),
+    )
+    size = options.size
+    parts = canary.describe(canary.parts_of(path))
+    print(f"pimbot check {args.file} ({parts}): seeds: {size.seeds}, iterations: {size.iterations}")
+    result = canary.check_file(path, options)
+    print(canary.table(result))
+    for problem in result.problems:
+        print(f"problem: {problem}")
+    if result.problems:
+        return 1
+    print("ok: every hook ran, each attack and defense hook changed what the learner does")
+    return 0

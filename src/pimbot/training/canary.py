@@ -1,0 +1,436 @@
+"""`pimbot check FILE.py`: a canary run of every part a plugin file registers.
+
+A null result ("the attack did not hurt") and a plugin that did nothing read the same in
+metrics.csv. The canary tells them apart, in memory, writing nothing:
+
+* each **attack** and **defense** of the file runs a tiny paired run (a few iterations,
+  1–2 seeds) on a small env with a learner that has its hook points. Its hooks are counted
+  (`canary_probes.instrument`): how many times the compiled program executed each one, and
+  in how many of those calls its output differed from the no-op output for the same inputs
+  (what the base `Attack` or `Defense` returns). The run is made twice from the same keys,
+  once with the hooks' own outputs and once with their no-op outputs (one compiled
+  program), and the two runs' metrics are compared. A defense runs clean and, where one
+  is named, under an attack too.
+* each **learner** trains on the env with a probe attack and a probe defense that do
+  nothing at every hook point the learner declares, so each point it lists is counted
+  where the learner actually consults it; its parameters must change.
+* each **env** trains a learner for a few iterations; its metrics must be finite.
+
+A problem is one line: a hook that never ran, a hook whose output never differed from
+doing nothing (in any setting), a learner that never consults a hook point it declares or
+whose parameters did not move, non-finite metrics. As Gymnasium's `env_checker` and
+PettingZoo's `parallel_api_test` call an env and check what comes back, this calls a
+plugin's hooks inside the program that trains (docs/extending.md, "Checking what a plugin
+does: pimbot check").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+from pimbot import attacks, defenses, envs, learners
+from pimbot.contracts import conformance
+from pimbot.envs.core import program_env
+from pimbot.errors import InvalidParameter
+from pimbot.training import canary_probes, programs, runner
+from pimbot.training.config import RunConfig, resolve
+
+
+@dataclasses.dataclass(frozen=True)
+class Size:
+    """How long each canary run is."""
+
+    seeds: int = 2
+    iterations: int = 20
+    eval_episodes: int = 2
+
+
+@dataclasses.dataclass(frozen=True)
+class Parts:
+    """What one plugin file registered, by kind: registry names."""
+
+    envs: tuple[str, ...] = ()
+    learners: tuple[str, ...] = ()
+    attacks: tuple[str, ...] = ()
+    defenses: tuple[str, ...] = ()
+
+    def __bool__(self) -> bool:
+        return bool(self.envs or self.learners or self.attacks or self.defenses)
+
+
+@dataclasses.dataclass(frozen=True)
+class Row:
+    """One hook of one part in one setting (or a part without hooks: hook "-")."""
+
+    part: str
+    """e.g. "attack adaptive_fake_incentive"."""
+    setting: str
+    """env, learner and what else ran, e.g. "escape_room-v0 · lio · clean"."""
+    hook: str
+    calls: int | None = None
+    changed: int | None = None
+    """Calls whose output differed from the no-op's; None where not asked (a learner's
+    probes do nothing by design)."""
+    run_differs: bool | None = None
+    """Whether the paired runs' metrics differ (with the hooks' outputs vs the no-op's)."""
+    note: str = ""
+
+
+@dataclasses.dataclass(frozen=True)
+class Result:
+    rows: tuple[Row, ...]
+    problems: tuple[str, ...]
+
+
+@dataclasses.dataclass(frozen=True)
+class Options:
+    """What the command line chose: the env of the runs (else the file's, else the
+    default), a learner, an attack to check defenses under as well as clean, and the
+    size of the runs."""
+
+    default_env: str
+    """The env where neither `env` nor the file names one."""
+    env: str | None = None
+    learner: str | None = None
+    defense_attack: str | None = None
+    size: Size = Size()
+
+
+# --- what the file registered ------------------------------------------------------------
+
+
+def _from(path: Path, obj: Any) -> bool:
+    found = conformance.source_file(obj)
+    return found is not None and Path(found).resolve() == path
+
+
+def registered_in(path: str) -> Parts:
+    """The envs, learners, attacks and defenses whose code is in the file `path`."""
+    where = Path(path).resolve()
+    return Parts(
+        envs=tuple(e for e in envs.registered() if _from(where, envs.spec(e).constructor)),
+        learners=tuple(n for n in learners.registered() if _from(where, learners.get(n).init)),
+        attacks=tuple(a for a in attacks.registered() if _from(where, attacks.attack_class(a))),
+        defenses=tuple(d for d in defenses.registered() if _from(where, defenses.defense_class(d))),
+    )
+
+
+# --- one paired run ----------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class Outcome:
+    """A paired run: the metrics with the hooks' own outputs and with the no-op's, and
+    whether the learner's parameters moved (with the hooks' own)."""
+
+    metrics_on: Any
+    metrics_off: Any
+    params_moved: bool
+
+    @property
+    def differs(self) -> bool:
+        pairs = zip(
+            jax.tree.leaves(self.metrics_on), jax.tree.leaves(self.metrics_off), strict=True
+        )
+        return any(not np.array_equal(a, b, equal_nan=True) for a, b in pairs)
+
+    @property
+    def finite(self) -> bool:
+        return all(np.isfinite(x).all() for x in jax.tree.leaves(self.metrics_on))
+
+    def success(self, on: bool = True) -> float:
+        metrics = self.metrics_on if on else self.metrics_off
+        return float(np.mean(metrics["eval"]["success"]))
+
+
+Build = Callable[[bool], tuple[Any, tuple]]
+"""flag -> (attack, defenses) of one half of a paired run."""
+
+
+def paired_run(resolved, build: Build, size: Size, paired: bool = True) -> Outcome:
+    """Trains `resolved`'s learner `size.iterations` iterations on `size.seeds` seeds twice
+    from the same keys: with `build(True)`'s attack and defenses, then `build(False)`'s
+    (one compiled program: they differ only in numbers); once, with `build(True)`'s, unless
+    `paired` (the second half's metrics are then the first's). Writes nothing.
+
+    The seeds run one after another through a program compiled for one seed: under a
+    vmap over seeds, a hook whose inputs are the same for every seed would be executed
+    (and counted) once for all of them."""
+    init = runner.make_init_fn(resolved)
+    chunk = runner.make_chunk_fn(resolved, 1)
+    env, numbers = program_env(resolved.env), programs.optimum_numbers(resolved.env)
+    results, moved = [], False
+    for on in (True, False) if paired else (True,):
+        args = (*build(on), env, numbers)
+        per_seed = []
+        for seed in range(size.seeds):
+            keys = runner.seed_keys(seed, 1)
+            states = init(jax.vmap(lambda k: jax.random.fold_in(k, 0))(keys), *args)
+            before = jax.device_get(states)  # the chunk takes (donates) the states
+            eval_roots = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
+            states, metrics = chunk(states, eval_roots, *args)
+            per_seed.append(jax.device_get(metrics))
+            moved = moved or (on and _params_moved(before, jax.device_get(states)))
+        results.append(jax.tree.map(lambda *x: np.concatenate(x), *per_seed))
+    jax.effects_barrier()  # every hook's callback has run
+    return Outcome(results[0], results[-1], moved)
+
+
+def _params_moved(before, after) -> bool:
+    """Whether any float leaf of the learner state outside the attack's and defenses'
+    own state changed."""
+    leaves = jax.tree_util.tree_leaves_with_path(before)
+    for (path, old), new in zip(leaves, jax.tree.leaves(after), strict=True):
+        if jax.tree_util.keystr(path).startswith(runner.OWN_STATES):
+            continue
+        if np.issubdtype(np.asarray(old).dtype, np.floating) and not np.array_equal(old, new):
+            return True
+    return False
+
+
+def resolved_run(env_id: str, learner: str, size: Size, attack: str | None = None, defense=None):
+    """The run of `learner` on `env_id` with the registered `attack` and `defense` (names,
+    their default parameters), `size` long, evaluated once at its end."""
+    run = RunConfig(
+        env_id,
+        learner=learner,
+        seeds=size.seeds,
+        iterations=size.iterations,
+        eval_period=size.iterations,
+        eval_episodes=size.eval_episodes,
+        attack=attack,
+        defenses=((defense, ()),) if defense else (),
+    )
+    return resolve(run)
+
+
+# --- the settings a part is checked in ---------------------------------------------------
+
+
+def learner_order(parts: Parts, options: Options) -> list[str]:
+    """Learners to try, first the one asked for, else the file's, the default, the rest."""
+    if options.learner is not None:
+        return [options.learner]
+    first = [*parts.learners, learners.DEFAULT_LEARNER]
+    return list(dict.fromkeys([*first, *learners.registered()]))
+
+
+def first_run(env_id: str, candidates: list[str], size: Size, **names) -> tuple[Any, str]:
+    """The first of `candidates` that can run on `env_id` with `names` (attack=, defense=),
+    resolved; else (None, why the last one could not)."""
+    why = "no learner registered"
+    for name in candidates:
+        try:
+            return resolved_run(env_id, name, size, **names), ""
+        except InvalidParameter as error:
+            why = str(error)
+    return None, why
+
+
+def _setting(resolved, context: str) -> str:
+    return f"{resolved.run.env_id} · {resolved.run.learner} · {context}"
+
+
+def check_attack(name: str, env_id: str, order: list[str], size: Size, tally) -> Result:
+    """The paired run of attack `name`: its hooks counted, with vs without."""
+    part = f"attack {name}"
+    resolved, why = first_run(env_id, order, size, attack=name)
+    if resolved is None:
+        return Result((), (f"{part}: no learner can run it on {env_id}: {why}",))
+    hooks = _own_hooks(resolved.attack, resolved.learner.attack_hooks)
+    setting = _setting(resolved, "no defense")
+
+    def build(on: bool):
+        counted = canary_probes.instrument(resolved.attack, hooks, tally, f"{part} {setting}", on)
+        return counted, resolved.defenses
+
+    outcome = paired_run(resolved, build, size)
+    rows = _hook_rows(part, setting, hooks, tally, outcome)
+    return Result(rows, _hook_problems(part, rows))
+
+
+def check_defense(name: str, env_id: str, order, options: Options, tally) -> Result:
+    """The paired runs of defense `name`: clean, and under `options.defense_attack`."""
+    part, rows, problems = f"defense {name}", [], []
+    contexts = [None] + ([options.defense_attack] if options.defense_attack else [])
+    for attack in contexts:
+        resolved, why = first_run(env_id, order, options.size, attack=attack, defense=name)
+        if resolved is None and attack is not None:  # the clean setting is the one required
+            rows.append(Row(part, f"{env_id} · under attack {attack}", "-", note=f"skipped: {why}"))
+            continue
+        if resolved is None:
+            problems.append(f"{part}: no learner can run it on {env_id}: {why}")
+            continue
+        defense = resolved.defenses[0]
+        hooks = _own_hooks(defense, resolved.learner.defense_hooks)
+        setting = _setting(resolved, f"under attack {attack}" if attack else "clean")
+
+        def build(on: bool, resolved=resolved, defense=defense, hooks=hooks, label=setting):
+            counted = canary_probes.instrument(defense, hooks, tally, f"{part} {label}", on)
+            return resolved.attack, (counted,)
+
+        outcome = paired_run(resolved, build, options.size)
+        rows += _hook_rows(part, setting, hooks, tally, outcome)
+    return Result(tuple(rows), tuple(problems) + _hook_problems(part, rows))
+
+
+def _own_hooks(obj, consulted: tuple[str, ...]) -> tuple[str, ...]:
+    """The hooks an attack or defense lists, and the optional ones it overrides that the
+    learner consults (`consulted`)."""
+    optional = [h for h in getattr(obj, "optional_hooks", ()) if h in consulted]
+    return tuple(dict.fromkeys([*obj.hooks, *optional]))
+
+
+def _hook_rows(part, setting, hooks, tally, outcome: Outcome) -> tuple[Row, ...]:
+    note = f"success {outcome.success():.2f} vs {outcome.success(False):.2f} without"
+    rows = []
+    for hook in hooks:
+        calls, changed = tally.of(f"{part} {setting}", hook)
+        rows.append(Row(part, setting, hook, calls, changed, outcome.differs, note))
+    return tuple(rows)
+
+
+def _hook_problems(part: str, rows) -> tuple[str, ...]:
+    """A hook that never ran in some setting; one whose output never changed in any."""
+    problems = []
+    for hook in dict.fromkeys(r.hook for r in rows if r.calls is not None):
+        mine = [r for r in rows if r.hook == hook]
+        for row in mine:
+            if not row.calls:
+                problems.append(f"{part}: hook {hook} never ran ({row.setting})")
+        if all(r.calls for r in mine) and not any(r.changed for r in mine):
+            calls = sum(r.calls for r in mine)
+            problems.append(
+                f"{part}: hook {hook} ran {calls} times and its output never differed from "
+                "doing nothing (the base class's output for the same inputs)"
+            )
+    return tuple(problems)
+
+
+def check_learner(name: str, env_id: str, size: Size, tally) -> Result:
+    """Learner `name` trains with probes at every hook point it declares; each is counted."""
+    part = f"learner {name}"
+    try:
+        resolved = resolved_run(env_id, name, size)
+    except InvalidParameter as error:
+        return Result((), (f"{part}: cannot run on {env_id}: {error}",))
+    definition = resolved.learner
+    attack_hooks, defense_hooks = definition.attack_hooks, definition.defense_hooks
+
+    def build(on: bool):
+        attack = canary_probes.probe_attack(attack_hooks)
+        defense = canary_probes.probe_defense(defense_hooks)
+        counted_attack = canary_probes.instrument(attack, attack_hooks, tally, part, on)
+        counted_defense = canary_probes.instrument(defense, defense_hooks, tally, part, on)
+        return counted_attack, (counted_defense,) if defense_hooks else ()
+
+    outcome = paired_run(resolved, build, size, paired=False)
+    setting = _setting(resolved, "probes doing nothing")
+    rows = [Row(part, setting, "(trains)", note=_trained_note(outcome))]
+    for hook in (*attack_hooks, *defense_hooks):
+        calls, _ = tally.of(part, hook)
+        rows.append(Row(part, setting, hook, calls))
+    problems = [
+        f"{part}: declares hook point {r.hook} but never consulted it" for r in rows if r.calls == 0
+    ]
+    problems += _training_problems(part, outcome)
+    return Result(tuple(rows), tuple(problems))
+
+
+def check_env(env_id: str, order: list[str], size: Size) -> Result:
+    """Env `env_id` trains the first learner that runs on it, clean."""
+    part = f"env {env_id}"
+    resolved, why = first_run(env_id, order, size)
+    if resolved is None:
+        return Result((), (f"{part}: no learner can run on it: {why}",))
+    outcome = paired_run(resolved, lambda on: (resolved.attack, resolved.defenses), size, False)
+    row = Row(part, _setting(resolved, "clean"), "(trains)", note=_trained_note(outcome))
+    return Result((row,), _training_problems(part, outcome))
+
+
+def _trained_note(outcome: Outcome) -> str:
+    moved = "parameters moved" if outcome.params_moved else "parameters did not move"
+    finite = "metrics finite" if outcome.finite else "metrics NOT finite"
+    return f"{moved}; {finite}; success {outcome.success():.2f}"
+
+
+def _training_problems(part: str, outcome: Outcome) -> tuple[str, ...]:
+    problems = []
+    if not outcome.params_moved:
+        problems.append(f"{part}: the learner's parameters did not change in training")
+    if not outcome.finite:
+        problems.append(f"{part}: a metric is not finite (nan or inf)")
+    return tuple(problems)
+
+
+# --- the whole file ----------------------------------------------------------------------
+
+
+def parts_of(path: str) -> Parts:
+    """What the file `path` (loaded already) registered.
+
+    Raises:
+        InvalidParameter: it registers nothing.
+    """
+    parts = registered_in(path)
+    if not parts:
+        raise InvalidParameter(
+            f"check: {path} registers no env, learner, attack or defense "
+            "(a plugin calls pimbot's register functions when it is imported)"
+        )
+    return parts
+
+
+def describe(parts: Parts) -> str:
+    """e.g. "attack adaptive_fake_incentive, env public_goods_game-v0"."""
+    named = [
+        f"{kind} {name}"
+        for kind, names in (
+            ("env", parts.envs),
+            ("learner", parts.learners),
+            ("attack", parts.attacks),
+            ("defense", parts.defenses),
+        )
+        for name in names
+    ]
+    return ", ".join(named)
+
+
+def check_file(path: str, options: Options) -> Result:
+    """Checks every part registered from `path` (loaded already).
+
+    Raises:
+        InvalidParameter: the file registers nothing.
+    """
+    parts = parts_of(path)
+    env_id = options.env or (parts.envs[0] if parts.envs else options.default_env)
+    order = learner_order(parts, options)
+    tally = canary_probes.Tally()
+    results = [check_env(e, order, options.size) for e in parts.envs]
+    results += [check_learner(n, env_id, options.size, tally) for n in parts.learners]
+    results += [check_attack(a, env_id, order, options.size, tally) for a in parts.attacks]
+    results += [check_defense(d, env_id, order, options, tally) for d in parts.defenses]
+    rows = tuple(row for r in results for row in r.rows)
+    return Result(rows, tuple(p for r in results for p in r.problems))
+
+
+def table(result: Result) -> str:
+    """The rows as an aligned text table."""
+    head = ("part", "setting", "hook", "calls", "changed", "run differs", "")
+    lines = [head]
+    for r in result.rows:
+        calls = "-" if r.calls is None else str(r.calls)
+        changed = "-" if r.changed is None else str(r.changed)
+        differs = "-" if r.run_differs is None else ("yes" if r.run_differs else "no")
+        lines.append((r.part, r.setting, r.hook, calls, changed, differs, r.note))
+    widths = [max(len(line[i]) for line in lines) for i in range(len(head))]
+    return "\n".join(
+        "  ".join(cell.ljust(w) for cell, w in zip(line, widths, strict=True)).rstrip()
+        for line in lines
+    )
