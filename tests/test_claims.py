@@ -134,10 +134,15 @@ def test_verdict_vocabulary():
     assert verdicts.combine({"a": verdicts.reproduced(), "b": verdicts.at_budget("x")}).kind == (
         verdicts.AT_BUDGET
     )
-    # The quick budget: learning evidence becomes inconclusive, the env's rules do not.
-    quick = verdicts.at_quick_budget(verdicts.refuted(verdicts.IMPLEMENTATION, "0.1"))
-    assert quick.kind == verdicts.INCONCLUSIVE and "0.1" in quick.reason
-    rules = verdicts.at_quick_budget(verdicts.refuted(verdicts.PAPER_ENVIRONMENT, "idle"))
+    # The quick budget: learning evidence becomes inconclusive, whatever the cause it names
+    # (short runs show no more that the paper contradicts itself); the env's rules do not.
+    for cause in (verdicts.IMPLEMENTATION, verdicts.PAPER_METRIC, verdicts.PAPER_ENVIRONMENT):
+        quick = verdicts.at_quick_budget(verdicts.refuted(cause, "0.1"))
+        assert quick.kind == verdicts.INCONCLUSIVE and "0.1" in quick.reason
+    structural = verdicts.refuted(verdicts.IMPLEMENTATION, "idle", structural=True)
+    rules = verdicts.at_quick_budget(verdicts.combine({"a": structural, "b": wrong}))
+    assert rules.kind == verdicts.INCONCLUSIVE  # a learning part among the refuted ones
+    rules = verdicts.at_quick_budget(verdicts.combine({"a": structural, "b": parts["a"]}))
     assert rules.kind == verdicts.REFUTED and rules.qualifier == "quick budget"
 
 
@@ -466,7 +471,9 @@ def test_claims_table_at_the_quick_budget():
         for j in presets.suite(quick=True)
     ]
     learning = Claim("C3", "c", "r", "m", verdicts.refuted(verdicts.IMPLEMENTATION, "0.3"))
-    rules = Claim("C4", "d", "r", "m", verdicts.refuted(verdicts.PAPER_ENVIRONMENT, "idle"))
+    rules = Claim(
+        "C4", "d", "r", "m", verdicts.refuted(verdicts.IMPLEMENTATION, "idle", structural=True)
+    )
     rows = {
         c.id: c for c in claims.suite_claims([learning, rules], {"suite": "quick", "jobs": jobs})
     }

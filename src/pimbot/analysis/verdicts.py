@@ -13,8 +13,8 @@ measured numbers; there is no bare "not reproduced".
 
 `combine` joins the verdicts of a claim's parts; `at_quick_budget` is what the quick
 suite (3 seeds, a fifth of the iterations) may conclude: a refutation that rests on
-learning evidence becomes inconclusive there, one that follows from the environment's
-rules or the paper's own code does not.
+learning runs becomes inconclusive there, whatever cause it names; one that follows from
+the environment's rules (`structural`) does not.
 """
 
 from __future__ import annotations
@@ -35,8 +35,6 @@ PAPER_ENVIRONMENT = "the paper (contradicts its own environment)"
 PAPER_METRIC = "the paper (contradicts its own metric)"
 PAPER_CODE = "the paper (contradicts its own code)"
 CAUSES = (IMPLEMENTATION, BUDGET, SPEC, PAPER_ENVIRONMENT, PAPER_METRIC, PAPER_CODE)
-BUDGET_FREE = (PAPER_ENVIRONMENT, PAPER_METRIC, PAPER_CODE)
-"""Causes that no amount of seeds or iterations changes."""
 
 LABELS = {
     REPRODUCED: "reproduced",
@@ -64,6 +62,9 @@ class Verdict:
     """Refuted only: why the measurement disagrees (CAUSES)."""
     qualifier: str = ""
     """Appended to the label in parentheses ("quick budget")."""
+    structural: bool = False
+    """Refuted only: it rests on what the env's rules allow, not on how far runs learned,
+    so no budget changes it (a run that succeeds where the rules forbid success)."""
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -99,8 +100,8 @@ def at_budget(reason: str) -> Verdict:
     return Verdict(AT_BUDGET, reason)
 
 
-def refuted(cause: str, reason: str) -> Verdict:
-    return Verdict(REFUTED, reason, (cause,))
+def refuted(cause: str, reason: str, structural: bool = False) -> Verdict:
+    return Verdict(REFUTED, reason, (cause,), structural=structural)
 
 
 def inconclusive(reason: str) -> Verdict:
@@ -124,14 +125,17 @@ def combine(parts: dict[str, Verdict]) -> Verdict:
             reason = "; ".join(
                 f"{name}: {v.reason}" if v.reason else name for name, v in deciding.items()
             )
-            return Verdict(kind, reason, causes)
+            structural = all(v.structural for v in deciding.values())
+            return Verdict(kind, reason, causes, structural=kind == REFUTED and structural)
     return reproduced("; ".join(f"{name}: {v.reason}" for name, v in parts.items() if v.reason))
 
 
 def at_quick_budget(verdict: Verdict) -> Verdict:
-    """What the quick suite may conclude: learning-evidence refutations become inconclusive
-    (the reason kept), structural ones stay; every verdict is marked "quick budget"."""
-    if verdict.kind == REFUTED and not set(verdict.causes) <= set(BUDGET_FREE):
+    """What the quick suite may conclude: a refutation that rests on learning runs becomes
+    inconclusive (the reason kept), whatever its cause — short runs are no evidence that the
+    paper contradicts itself either; a structural one stays; every verdict is marked
+    "quick budget"."""
+    if verdict.kind == REFUTED and not verdict.structural:
         return Verdict(
             INCONCLUSIVE, f"quick budget; as measured: {verdict.reason}", qualifier="quick budget"
         )

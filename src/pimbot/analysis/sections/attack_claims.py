@@ -525,6 +525,7 @@ def c3(data: Runs) -> Claim:
                     verdicts.IMPLEMENTATION,
                     f"the env's rules forbid success ({structure}), yet success {final} was "
                     f"measured in {run.seeds} seeds",
+                    structural=True,
                 )
             else:
                 parts[env] = verdicts.reproduced(f"structural, measured {final}")
