@@ -30,8 +30,6 @@ import dataclasses
 import logging
 import os
 import re
-import shutil
-import tempfile
 from collections.abc import Iterator
 from importlib import metadata
 from pathlib import Path
@@ -42,6 +40,7 @@ import jax.numpy as jnp
 
 import pimbot
 from pimbot import envs
+from pimbot.atomic_files import staged_directory
 from pimbot.errors import InvalidParameter
 from pimbot.robot.export_check import check_parity
 from pimbot.robot.exportable import (
@@ -300,24 +299,14 @@ def write_export(out: Path, files: dict[str, bytes], sidecar: dict[str, Any]) ->
     previous export there is replaced): readers see the old export or the new one (or,
     for a moment, none), never a partial one."""
     out.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{out.name}.export-"))
     umask = os.umask(0o022)
     os.umask(umask)
-    staging.chmod(0o777 & ~umask)  # as a directory made with mkdir (mkdtemp's is private)
-    try:
+    with staged_directory(out) as new:
+        new.mkdir()
         for name, data in files.items():
-            (staging / name).write_bytes(data)
-        store.write_json(staging / SIDECAR, sidecar)
-        (staging / SIDECAR).chmod(0o666 & ~umask)
-        if out.exists():
-            previous = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{out.name}.previous-"))
-            os.rename(out, previous / out.name)
-            os.rename(staging, out)
-            shutil.rmtree(previous)
-        else:
-            os.rename(staging, out)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
+            (new / name).write_bytes(data)
+        store.write_json(new / SIDECAR, sidecar)
+        (new / SIDECAR).chmod(0o666 & ~umask)  # as a file made with open (mkstemp's is private)
 
 
 def export_run(run_dir: str | Path, out: str | Path, seed: int | None = None) -> dict[str, Any]:

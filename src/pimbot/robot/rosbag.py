@@ -20,12 +20,10 @@ docs/robot.md says how to play such a bag on a TurtleBot3 and what was not tried
 from __future__ import annotations
 
 import json
-import os
-import shutil
-import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from pimbot.atomic_files import staged_directory
 from pimbot.robot.messages import Odometry, Twist, cmd_vel_topic, odom_topic
 
 if TYPE_CHECKING:  # importing this module imports neither mujoco nor numpy (CLI start-up)
@@ -170,12 +168,8 @@ def write_bag(
     out = Path(out)
     check_bag_target(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{out.name}."))
-    try:
-        _write_messages(result, staging / out.name, storage, distro)
-        _replace(staging / out.name, out, staging)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
+    with staged_directory(out) as new:
+        _write_messages(result, new, storage, distro)
     return out
 
 
@@ -203,16 +197,6 @@ def _write_messages(result: EpisodeResult, path: Path, storage: str, distro: str
         for stamp, event in decision_events(result):
             ros = types[STRING](data=json.dumps(event))
             writer.write(connections[DECISIONS_TOPIC], stamp, store.serialize_cdr(ros, STRING))
-
-
-def _replace(new: Path, out: Path, staging: Path) -> None:
-    """Moves the bag `new` to `out`: a link there is removed (its target left alone), an old
-    bag moved into `staging` (deleted with it), so `out` is missing only between renames."""
-    if out.is_symlink():
-        out.unlink()
-    elif out.exists():
-        out.rename(staging / ".replaced")
-    os.rename(new, out)
 
 
 def read_bag(path: str | Path) -> dict[str, list[tuple[int, object]]]:
