@@ -335,6 +335,27 @@ def test_a_learner_entry_declares_defaults_of_its_hyperparameters_types():
     assert "contract_lio" not in learners.registered()
 
 
+def test_a_learner_listing_a_misspelt_hook_point_is_refused_at_registration():
+    lio = learners.get("lio")
+    misspelt = dataclasses.replace(
+        lio, name="contract_lio", attack_hooks=(*lio.attack_hooks, "adversary_stepp")
+    )
+    with pytest.raises(
+        InvalidParameter,
+        match=r"^attack_hooks: 'adversary_stepp' is no attack hook point "
+        r"\(did you mean 'adversary_step'\?\); allowed: act, emit, .* \(learner contract_lio, "
+        r"declared at .*test_plugin_contracts\.py:\d+\)$",
+    ):
+        learner_contract.register(misspelt)
+    elsewhere = dataclasses.replace(lio, name="contract_lio", defense_hooks=("emit",))
+    with pytest.raises(InvalidParameter, match=r"^defense_hooks: 'emit' is no defense hook"):
+        learner_contract.register(elsewhere)
+    one_string = dataclasses.replace(lio, name="contract_lio", defense_hooks="acting_epsilon")
+    with pytest.raises(InvalidParameter, match=r"^defense_hooks: contract_lio's must be a tuple"):
+        learner_contract.register(one_string)
+    assert "contract_lio" not in learners.registered()
+
+
 # --- what passes: the built-ins, the documented examples, and their values unchanged ----
 
 

@@ -146,7 +146,7 @@ def check_hooked_class(
     listed = tuple(cls.hooks)
     for hook in (*listed, *optional):
         if hook not in hooks:
-            guess = _did_you_mean(hook, hooks)
+            guess = did_you_mean(hook, hooks)
             raise ContractError(
                 f"{member_location(cls, 'hooks')}: {what}: unknown hook point {hook!r}{guess}; "
                 f"the hook points are {', '.join(hooks)}"
@@ -188,7 +188,7 @@ def overrides(cls: type, base: type, name: str) -> bool:
     return mine is not inspect.unwrap(getattr(base, name))
 
 
-def _did_you_mean(name: str, choices: Iterable[str]) -> str:
+def did_you_mean(name: str, choices: Iterable[str]) -> str:
     close = difflib.get_close_matches(name, list(choices), n=1, cutoff=0.75)
     return f" (did you mean {close[0]!r}?)" if close else ""
 

@@ -122,8 +122,9 @@ class LearnerDef:
     """acting(env, cfg, state) -> Actor: the trained policy at ε = 0 (robot, profiling)."""
     attack_hooks: tuple[str, ...]
     """Attack hook points the learner consults (`pimbot.contracts.attack.HOOKS`): exactly
-    those its code calls. A run whose attack lists a hook point not here is refused, one
-    line naming it and the attacks usable with this learner."""
+    those its code calls (a name that is no hook point is refused at registration). A run
+    whose attack lists a hook point not here is refused, one line naming it and the attacks
+    usable with this learner."""
     defense_hooks: tuple[str, ...] = ()
     """Defense hook points the learner consults (`pimbot.contracts.defense.HOOKS`); a run
     with a defense acting elsewhere is refused naming the hook."""
@@ -188,10 +189,39 @@ def register(definition: LearnerDef, *, replace: bool = False) -> LearnerDef:
     if not isinstance(definition, LearnerDef):
         raise TypeError(f"learners register a LearnerDef, got {definition!r}")
     where = f"at {conformance.caller_location()}"
+    _check_hook_names(definition, where)
     check_hparams(definition, dict(definition.base_overrides), "base_overrides", where)
     for env_id, values in definition.env_defaults.items():
         check_hparams(definition, values, f"{definition.name}'s default on {env_id}", where)
     return LEARNERS.register(definition.name, definition, replace=replace)
+
+
+def _check_hook_names(definition: LearnerDef, where: str) -> None:
+    """Each of `attack_hooks` / `defense_hooks` names a hook point of its contract: a
+    misspelt one would otherwise only show as every attack at it being refused.
+
+    Raises:
+        ContractError: ``FIELD: NAME is no attack|defense hook point; allowed: ...``.
+    """
+    from pimbot.contracts import attack, defense  # JAX-side; registering a learner is too
+
+    for field, kind, known in (
+        ("attack_hooks", "attack", attack.HOOKS),
+        ("defense_hooks", "defense", defense.HOOKS),
+    ):
+        hooks = getattr(definition, field)
+        if isinstance(hooks, str) or not isinstance(hooks, (tuple, list)):
+            raise conformance.ContractError(
+                f"{field}: {definition.name}'s must be a tuple of hook points, got {hooks!r} "
+                f"(declared {where})"
+            )
+        for hook in hooks:
+            if hook not in known:
+                raise conformance.ContractError(
+                    f"{field}: {hook!r} is no {kind} hook point"
+                    f"{conformance.did_you_mean(hook, known)}; allowed: {', '.join(known)} "
+                    f"(learner {definition.name}, declared {where})"
+                )
 
 
 def check_hparams(definition: LearnerDef, values: Mapping[str, Any], what: str, where: str):

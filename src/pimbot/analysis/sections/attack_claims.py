@@ -473,8 +473,11 @@ def _c2_part(data: Runs, run: RunRecord) -> Verdict:
     early, final = falls(run)
     verdict, failed = _c2_verdict(early, final, resolution(run))
     text = f"exploration ≤ {end:,} it: early success {estimate(early)}, final {estimate(final)}"
-    if verdict is not None:
-        return dataclasses.replace(verdict, reason=f"{text}; {verdict.reason}")
+    if verdict is not None:  # a fall's reason carries both numbers, the early part's one
+        detail = verdict.reason
+        if failed == "early":
+            detail += f", final {estimate(final)}"
+        return dataclasses.replace(verdict, reason=f"exploration ≤ {end:,} it: {detail}")
     reason = (
         f"{text}: no early success"
         if failed == "early"
