@@ -551,3 +551,29 @@ def test_direction_tests_over_seeds():
     assert judging.falls_to_zero(np.zeros(3), np.zeros(3), res).kind == verdicts.INCONCLUSIVE
     assert judging.above_zero(np.full(5, -1.0), "margin") is None
     assert judging.above_zero(np.array([-1.0, 1.0, 0.5]), "m").kind == verdicts.INCONCLUSIVE
+
+
+def test_c7_stag_hunt_rows_show_the_logged_stag_captures(tmp_path):
+    """The C7 table's captures column is the runs' own eval/stag_captures (the Stag Hunt's
+    step metric), final per seed; an Escape Room row has none."""
+    stag = write_run(
+        tmp_path,
+        "reciprocators/sh2_clean",
+        const(**{"eval/success": 0.5, "eval/stag_captures": lambda s: 0.01 * s}),
+        env_id="stag_hunt-v0",
+        env_params={"n_players": 2},
+        learner="reciprocator",
+        horizon=100,
+        period=5,
+    )
+    room = write_run(
+        tmp_path,
+        "reciprocators/er21_clean",
+        const(**{"eval/success": 0.9}),
+        learner="reciprocator",
+        horizon=100,
+        period=5,
+    )
+    rows = {row["env"]: row for row in reciprocators.results_rows([stag, room])}
+    assert rows["SH(2)"]["stag_captures"].mean == pytest.approx(0.02)  # seeds 0..4
+    assert rows["ER(2,1)"]["stag_captures"] is None

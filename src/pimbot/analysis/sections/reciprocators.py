@@ -9,7 +9,6 @@ from pimbot.analysis.document import Context, Section, seeds_text
 from pimbot.analysis.runs import CLEAN, RunRecord, RunTable, condition_key, natural_key
 from pimbot.analysis.tables import INTERVAL, Table, difference, estimate
 from pimbot.statistics import interval_text
-from pimbot.training import store
 
 GROUP = "reciprocators"
 LEARNER = "reciprocator"
@@ -25,9 +24,9 @@ C7_TARGETS = {  # env label -> published upper bound on ADMO (disrupt) success
     "SH(3)": 0.1,
     "SH(4)": 0.1,
 }
-CAPTURES_FILE = "stag_captures.json"
-"""Stag captures per episode of each seed's final policy, replayed from the checkpoint
-(success counts hares too); read when a run directory holds it."""
+CAPTURES = "eval/stag_captures"
+"""Stag captures per evaluation episode (the Stag Hunt's step metric; its success counts
+hares too), final per seed as every other column."""
 BASELINE = 0.8
 """The published baseline "80–90 %": its lower end."""
 
@@ -427,7 +426,7 @@ def voi_table(runs: list[RunRecord]) -> Table | None:
 
 def results_rows(runs: list[RunRecord]) -> list[dict]:
     """One row per run: final success and adversary margin with CIs, and the attack effect;
-    Stag Hunt rows whose run directory holds replayed stag captures show them too."""
+    Stag Hunt rows show their stag captures per episode too."""
     clean = {(r.env_key, r.learner, variant(r)): r for r in runs if r.condition == CLEAN}
     rows = []
     for run in runs:
@@ -445,8 +444,8 @@ def results_rows(runs: list[RunRecord]) -> list[dict]:
             "stag_captures": None,
             "run": run.setting,
         }
-        if (run.path / CAPTURES_FILE).exists():
-            row["stag_captures"] = estimate(store.read_json(run.path / CAPTURES_FILE)["per_seed"])
+        if (captures := run.per_seed(CAPTURES)).size:
+            row["stag_captures"] = estimate(captures)
         base = clean.get((run.env_key, run.learner, variant(run)))
         if run.condition != CLEAN and base is not None:
             row["effect_success"] = difference(success, base.per_seed("eval/success"))
