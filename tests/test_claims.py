@@ -385,6 +385,14 @@ def test_c1b_speed_by_a_rank_test_at_equal_horizon(tmp_path):
     assert "the original code's logs: 4+4 logs at 30,000 it" in claim.judged.reason
     row = next(n for n in claim.numbers if n.quantity.startswith("ER(4,2)"))
     assert row.original == "11.0k → 9.0k (4+4 logs)"
+    assert "per seed clean 9.0k/10.0k/11.0k/12.0k/13.0k / " in claim.measured
+    # Above ten seeds a part gives the quartiles over seeds, not forty numbers.
+    many = [
+        run("m", "clean", er(4, 2), lambda s: 1_000 * (s + 1) if s < 11 else 10**9, 12),
+        run("n", "self", er(4, 2), 10_500, 12),
+    ]
+    measured = attack_claims.c1b(data_of([*fast[:2], *many])).measured
+    assert "(12+12 seeds; quartiles over seeds clean 8.0k–13.0k, never 1 / " in measured
 
 
 # --- C5, C6, C7 ---------------------------------------------------------------------------
