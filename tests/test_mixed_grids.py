@@ -149,6 +149,14 @@ def test_report_intro_names_every_suite_and_the_skipped_cells():
     assert "a/cell11 (why); and 2 more." in text and "a/cell12" not in text
     one = layout.intro(Report({"suite": "a", "jobs": []}, Section("Provenance"), [], []))
     assert one[0].startswith("Suite: a — ") and not any("Skipped" in p for p in one)
+    # Jobs a stopped sweep finished without recording their time are counted as such.
+    jobs = [{"status": "finished", "wall_s": 60.0}, {"status": "finished"}, {"status": "pending"}]
+    timed = layout.intro(Report({"suite": "a", "jobs": jobs}, Section("Provenance"), [], []))[0]
+    assert "2/3 jobs finished (1 timed by `pimbot sweep`, 1.0 min of job wall time" in timed
+    assert "summed; 1 found finished in the directory, untimed)" in timed
+    everyone = [{"status": "finished", "wall_s": 60.0}]
+    alone = layout.intro(Report({"suite": "a", "jobs": everyone}, Section("Provenance"), [], []))
+    assert "1.0 min of job wall time summed). Generated" in alone[0]
 
 
 # --- a grid that names its plugins; provenance; --from ---------------------------------
