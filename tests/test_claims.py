@@ -545,6 +545,45 @@ def test_original_code_rows_at_the_common_horizon(tmp_path):
     assert (row.horizon, row.original, value) == ("10,000 it", None, None)
 
 
+def test_every_log_directory_at_the_runs_settings_is_read(tmp_path):
+    """Two original log directories at a run's exact settings that reach the horizon are
+    pooled, never one picked by a tie-break: the cause rests on all of them (here the
+    first alone would make ours differ, p < 0.05; with the second, which ours match, the
+    seeds cannot tell)."""
+
+    def reverse_run(name, finals, source=None):
+        return write_run(
+            tmp_path,
+            name,
+            lambda s, t: {"eval/success": finals[s] if t > 2500 else 0.7},
+            attack="reverse",
+            seeds=len(finals),
+            horizon=5000,
+            period=100,
+            source=source,
+        )
+
+    ours = reverse_run("attacks/er21_reverse", [0.03, 0.02, 0.01, 0.01, 0.03, 0.04, 0.02, 0.06])
+    zeros = reverse_run("original/policy_det", [0.0] * 5, runs.ORIGINAL_CODE)
+    a2d = reverse_run("original/policy_test_a2d", [0.0, 0.0, 0.01, 0.03, 0.01], runs.ORIGINAL_CODE)
+    table = runs.RunTable((ours,), (zeros, a2d))
+    log = table.original_for(ours, 5000)
+    assert log.seeds == 10 and log.name == "original/policy_det + original/policy_test_a2d"
+    np.testing.assert_allclose(
+        sorted(log.curves.final("eval/success")), sorted([0.0] * 7 + [0.01, 0.01, 0.03])
+    )
+    np.testing.assert_allclose(log.per_seed("eval/success"), log.curves.final("eval/success"))
+    assert table.original_for(ours, 6000).seeds == 5  # none reaches: the longest, most seeds
+    data = attack_claims.Runs(table, {(ours.env, ours.condition): ours})
+    row, _ = data.compare("q", "0", ours, "eval/success")
+    assert "10 distinct logs" in row.original
+    alone = statistics.difference_p_value(ours.curves.final("eval/success"), np.zeros(5))
+    pooled = statistics.difference_p_value(
+        ours.curves.final("eval/success"), log.curves.final("eval/success")
+    )
+    assert alone < judging.DIFFERS_P and pooled > alone
+
+
 def test_direction_tests_over_seeds():
     """The tests that replace thresholds: a sign-flip permutation test against 0, a rank
     test of iterations with "never" as +∞, and the fall to ≈ 0 from the early success."""

@@ -126,14 +126,15 @@ class RunTable:
         parameter), learner and learner configuration, attack and resolved attack
         parameters. Nothing else stands in for it: a log of the same attack under other
         parameters is no evidence about this run (`originals_elsewhere` names those). Of
-        several, the shortest that reaches `horizon`, else the longest, then the most seeds
-        (comparisons are made at the common horizon)."""
+        several log directories, every one that reaches `horizon`, pooled (`pooled`: no
+        directory is preferred to another at the same settings); where none does, the
+        longest, then the one with most seeds (comparisons are made at the common horizon)."""
         matches = self.originals_for(run)
         if not matches:
             return None
         reach = [r for r in matches if horizon is not None and r.iterations >= horizon]
         if reach:
-            return min(reach, key=lambda r: (r.iterations, -r.seeds))
+            return pooled(sorted(reach, key=lambda r: r.name))
         return max(matches, key=lambda r: (r.iterations, r.seeds))
 
     def originals_for(self, run: RunRecord) -> list[RunRecord]:
@@ -310,6 +311,35 @@ def natural_key(text: str) -> tuple:
 
 
 # --- loading ---------------------------------------------------------------------------
+
+
+def pooled(records: list[RunRecord]) -> RunRecord:
+    """Several runs at the same settings as one: their seeds side by side (numbered in
+    order), the columns every one has, the shortest horizon's iterations; named
+    "A + B" after the runs. One run is returned as it is."""
+    if len(records) == 1:
+        return records[0]
+    columns = tuple(
+        c for c in records[0].curves.columns if all(c in r.curves.columns for r in records)
+    )
+    iterations, values = {}, {}
+    for record in records:
+        for seed in record.curves.seeds:
+            number = len(iterations)
+            iterations[number] = record.curves.iterations[seed]
+            kept = record.curves.values[seed]
+            values[number] = {c: kept[c] for c in columns if c in kept}
+    curves = Curves(columns, tuple(iterations), iterations, values)
+    horizon = min(r.iterations for r in records)
+    final = {c: {"per_seed": curves.final(c).tolist()} for c in values[0]}
+    return dataclasses.replace(
+        records[0],
+        name=" + ".join(r.name for r in records),
+        summary={"seeds": list(curves.seeds), "iterations": horizon, "final": final},
+        seeds=len(iterations),
+        iterations=horizon,
+        curves=curves,
+    )
 
 
 def load_record(suite_dir: Path, name: str) -> RunRecord:
