@@ -126,16 +126,15 @@ class RunTable:
         parameter), learner and learner configuration, attack and resolved attack
         parameters. Nothing else stands in for it: a log of the same attack under other
         parameters is no evidence about this run (`originals_elsewhere` names those). Of
-        several log directories, every one that reaches `horizon`, pooled (`pooled`: no
-        directory is preferred to another at the same settings); where none does, the
-        longest, then the one with most seeds (comparisons are made at the common horizon)."""
+        several log directories, every one that reaches `horizon` (where none does, or
+        without one: the longest's length), pooled (`pooled`: no directory is preferred to
+        another at the same settings; comparisons are made at the common horizon)."""
         matches = self.originals_for(run)
         if not matches:
             return None
-        reach = [r for r in matches if horizon is not None and r.iterations >= horizon]
-        if reach:
-            return pooled(sorted(reach, key=lambda r: r.name))
-        return max(matches, key=lambda r: (r.iterations, r.seeds))
+        longest = max(r.iterations for r in matches)
+        cut = longest if horizon is None else min(horizon, longest)
+        return pooled(sorted((r for r in matches if r.iterations >= cut), key=lambda r: r.name))
 
     def originals_for(self, run: RunRecord) -> list[RunRecord]:
         """Every original-code run at `run`'s exact settings (`same_settings`)."""

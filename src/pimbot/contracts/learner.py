@@ -210,7 +210,7 @@ def _check_hook_names(definition: LearnerDef, where: str) -> None:
         ("defense_hooks", "defense", defense.HOOKS),
     ):
         hooks = getattr(definition, field)
-        if isinstance(hooks, str) or not isinstance(hooks, (tuple, list)):
+        if not isinstance(hooks, (tuple, list)):
             raise conformance.ContractError(
                 f"{field}: {definition.name}'s must be a tuple of hook points, got {hooks!r} "
                 f"(declared {where})"
