@@ -9,6 +9,7 @@ nothing is trained): they test the rules, not any measured figure.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 from pathlib import Path
 
@@ -531,18 +532,15 @@ def test_original_code_rows_at_the_common_horizon(tmp_path):
     assert table.original_for(ours) is log and table.original_for(c50) is None
     assert table.originals_elsewhere(c50) == [log]
     data = attack_claims.Runs(table, {(ours.env, ours.condition): ours})
-    row, value = data.compare("q", "~0", ours, "eval/success")
+    row = data.compare("q", "~0", ours, "eval/success")
     assert row.horizon == "5,000 it" and row.pimbot.startswith("1.000")
     assert row.original.startswith("0.500") and "2 distinct logs" in row.original
-    assert value.mean == 0.5
-    row, value = data.compare("q", "~0", c50, "eval/success")
-    assert value is None and row.horizon == "10,000 it"
+    row = data.compare("q", "~0", c50, "eval/success")
+    assert row.horizon == "10,000 it"
     assert row.original.startswith("not compared") and "amount 10" in row.original
     # Without a log: pimbot at its own horizon, "no log" in the table.
-    row, value = attack_claims.Runs(runs.RunTable((ours,)), {}).compare(
-        "q", "~0", ours, "eval/success"
-    )
-    assert (row.horizon, row.original, value) == ("10,000 it", None, None)
+    row = attack_claims.Runs(runs.RunTable((ours,)), {}).compare("q", "~0", ours, "eval/success")
+    assert (row.horizon, row.original) == ("10,000 it", None)
 
 
 def test_every_log_directory_at_the_runs_settings_is_read(tmp_path):
@@ -575,13 +573,58 @@ def test_every_log_directory_at_the_runs_settings_is_read(tmp_path):
     np.testing.assert_allclose(log.per_seed("eval/success"), log.curves.final("eval/success"))
     assert table.original_for(ours, 6000).seeds == 10  # none reaches: all at the longest
     data = attack_claims.Runs(table, {(ours.env, ours.condition): ours})
-    row, _ = data.compare("q", "0", ours, "eval/success")
-    assert "10 distinct logs" in row.original
+    row = data.compare("q", "0", ours, "eval/success")
+    assert "10 distinct logs" in row.original and "inferred" not in row.original
     alone = statistics.difference_p_value(ours.curves.final("eval/success"), np.zeros(5))
     pooled = statistics.difference_p_value(
         ours.curves.final("eval/success"), log.curves.final("eval/success")
     )
     assert alone < judging.DIFFERS_P and pooled > alone
+
+
+def test_a_log_whose_attack_is_inferred_is_shown_but_grounds_no_cause(tmp_path):
+    """A log whose name does not record its attack (er*_policy_det: "policy" names the
+    lever; the attack is read off a plot notebook) is shown in the original-code column,
+    marked, and pooled there; a cause rests only on logs that record their attack. Here
+    ours differ from the inferred log (5 × 0.0, p < 0.05) but not from the recorded one, so
+    C4's ER(2,1) part is inconclusive; with the inferred log alone, inconclusive too,
+    naming it."""
+
+    def reverse_run(name, finals, source=None, inferred=False):
+        run = write_run(
+            tmp_path,
+            name,
+            lambda s, t: {"eval/success": finals[s] if t > 2500 else 0.7},
+            attack="reverse",
+            seeds=len(finals),
+            horizon=25_000,
+            period=500,
+            learner_config={"epsilon_decay_iters": 2500},
+            source=source,
+        )
+        config = {**run.config, "identity": {**run.identity, "eval_episodes": 10}}
+        if inferred:
+            config["original"] = {"attack_inferred": True, "attack_evidence": "e"}
+        (run.path / "config.json").write_text(json.dumps(config))
+        return dataclasses.replace(run, config=config)
+
+    ours = reverse_run("attacks/er21_reverse", [0.03, 0.02, 0.01, 0.01, 0.03, 0.04, 0.02, 0.06])
+    det = reverse_run("original/er2_1_policy_det", [0.0] * 5, runs.ORIGINAL_CODE, inferred=True)
+    a2d = reverse_run("original/policy_test_a2d", [0.0, 0.0, 0.01, 0.03, 0.01], runs.ORIGINAL_CODE)
+    assert det.attack_inferred and not a2d.attack_inferred
+    assert runs.load_table(tmp_path).original[0].attack_inferred  # read from config.json
+    ours_finals = ours.curves.final("eval/success")
+    assert statistics.difference_p_value(ours_finals, np.zeros(5)) < judging.DIFFERS_P
+    for originals, shown in (((det, a2d), 10), ((det,), 5)):
+        table = runs.RunTable((ours,), originals)
+        assert table.original_for(ours).seeds == shown
+        assert table.original_for(ours, recorded=True) is (a2d if len(originals) == 2 else None)
+        data = attack_claims.Runs(table, {(ours.env, ours.condition): ours})
+        row = data.compare("q", "0", ours, "eval/success")
+        assert f"{shown} distinct logs, attack inferred" in row.original
+        verdict = attack_claims.reverse(data, "ER(2,1)", ours).at_budget
+        assert verdict.kind == verdicts.INCONCLUSIVE, verdict
+    assert "er2_1_policy_det" in verdict.reason and "do not record their attack" in verdict.reason
 
 
 def test_direction_tests_over_seeds():

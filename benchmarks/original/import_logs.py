@@ -81,6 +81,11 @@ POLICY_ATTACK = (
     "'policy' alone (er*_policy_det): plot_a2d.ipynb reads these logs for its a2d "
     "(reverse) figures",
 )
+"""A name with "policy" and no attack token records the lever, not the attack: three
+of lio_agent_greedy.py's module flags act on the policy (no_acion, periodic_no_action —
+1000, i.e. on, in the committed file — and asc_to_dec), and no log records them. The
+attack is inferred from plot_a2d.ipynb reading these logs; such a log is marked
+"attack_inferred": the report shows it and names no cause on it."""
 
 LIO_FLAGS_REQUIRED = {
     "use_actor_critic": False,
@@ -374,6 +379,7 @@ def import_setting(
         "commit": repo.commit,
         "setting": setting,
         "attack_evidence": evidence,
+        "attack_inferred": attack == POLICY_ATTACK,
         "files": sum(len(log.paths) for log in used),
         "distinct_files": len(used),
         "copies_merged": sum(log.copies_merged for log in used),

@@ -97,6 +97,13 @@ class RunRecord:
         return self.identity["attack"]
 
     @property
+    def attack_inferred(self) -> bool:
+        """An original-code log whose attack its name does not record, only inferred from
+        elsewhere (config.json "original" "attack_inferred"): shown beside pimbot's run,
+        never the ground of a cause (`RunTable.original_for`)."""
+        return bool(self.config.get("original", {}).get("attack_inferred", False))
+
+    @property
     def source(self) -> str:
         """ "pimbot", or "original code" for a run converted from the original PIMbot
         repository's logs (config.json "source")."""
@@ -121,15 +128,20 @@ class RunTable:
     profile: dict[str, Any] | None = None
     """The paired profile's summary.json (None: no finished profile)."""
 
-    def original_for(self, run: RunRecord, horizon: int | None = None) -> RunRecord | None:
+    def original_for(
+        self, run: RunRecord, horizon: int | None = None, recorded: bool = False
+    ) -> RunRecord | None:
         """The original code's run at `run`'s settings: the same env (id and every
         parameter), learner and learner configuration, attack and resolved attack
         parameters. Nothing else stands in for it: a log of the same attack under other
         parameters is no evidence about this run (`originals_elsewhere` names those). Of
         several log directories, every one that reaches `horizon` (where none does, or
         without one: the longest's length), pooled (`pooled`: no directory is preferred to
-        another at the same settings; comparisons are made at the common horizon)."""
-        matches = self.originals_for(run)
+        another at the same settings; comparisons are made at the common horizon).
+        `recorded`: only logs whose name records their attack (not `attack_inferred`),
+        the logs a cause may rest on: a log whose settings are inferred is not shown to
+        be at `run`'s settings."""
+        matches = [r for r in self.originals_for(run) if not (recorded and r.attack_inferred)]
         if not matches:
             return None
         longest = max(r.iterations for r in matches)

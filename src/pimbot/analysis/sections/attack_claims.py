@@ -36,7 +36,7 @@ from pimbot.analysis.claims import Claim, Comparison
 from pimbot.analysis.document import count_text
 from pimbot.analysis.judging import PAPER_ATTACK_BUDGET, iteration_text
 from pimbot.analysis.runs import CLEAN, RunRecord, RunTable, settings_difference
-from pimbot.analysis.tables import Estimate, Table, difference, estimate
+from pimbot.analysis.tables import Table, difference, estimate
 from pimbot.analysis.verdicts import Verdict
 from pimbot.statistics import difference_p_value
 from pimbot.training.summary import FINAL_WINDOW
@@ -66,8 +66,22 @@ class Runs:
         return self.by.get((env, condition))
 
     def original(self, run: RunRecord, horizon: int | None = None) -> RunRecord | None:
-        """The original code's log at `run`'s exact settings (`RunTable.original_for`)."""
-        return self.table.original_for(run, horizon)
+        """The original code's logs a cause may rest on: at `run`'s exact settings, each
+        recording its attack in its name (`RunTable.original_for`, `recorded`)."""
+        return self.table.original_for(run, horizon, recorded=True)
+
+    def inferred(self, run: RunRecord) -> str | None:
+        """What the original code's logs at `run`'s settings whose attack is only inferred
+        are (None: there are none): shown, never the ground of a cause."""
+        logs = [r for r in self.table.originals_for(run) if r.attack_inferred]
+        if not logs:
+            return None
+        names = ", ".join(r.setting for r in logs)
+        why = logs[0].config["original"].get("attack_evidence", "")
+        return (
+            f"the original code's logs at these settings ({names}) do not record their "
+            f"attack (inferred: {why})"
+        )
 
     def elsewhere(self, run: RunRecord) -> str | None:
         """What the original code's logs of `run`'s attack at other settings differ in
@@ -89,7 +103,7 @@ class Runs:
     ) -> Verdict:
         """`judging.disagreement`, naming the original code's logs at other settings where
         none matches `run`: a comparison across attack parameters is only inconclusive."""
-        other = self.elsewhere(run) if agrees is None else None
+        other = (self.inferred(run) or self.elsewhere(run)) if agrees is None else None
         if other is not None:
             return verdicts.inconclusive(
                 f"{reason}; {other}: not comparable, so no cause can be named"
@@ -104,13 +118,13 @@ class Runs:
         column: str,
         until: int | None = None,
         **fmt,
-    ) -> tuple[Comparison, Estimate | None]:
+    ) -> Comparison:
         """The paper | original code | pimbot row of `column`'s final value: pimbot's run and
-        the original code's log at its exact settings, both cut at their common horizon
-        (≤ `until`); and the original's value (None without a log)."""
+        the original code's logs at its exact settings (every one, marked where its attack
+        is inferred), both cut at their common horizon (≤ `until`)."""
         ours = run.curves
         limit = min(ours.horizon, until if until is not None else ours.horizon)
-        original = self.original(run, limit)
+        original = self.table.original_for(run, limit)
         theirs = original.curves if original is not None else None
         if theirs is None or not theirs.has(column):
             value = estimate(ours.final(column, limit), **fmt)
@@ -119,25 +133,26 @@ class Runs:
                 text = "not logged"
             elif self.elsewhere(run) is not None:
                 text = "not compared: " + self.elsewhere(run)
-            return Comparison(quantity, f"{limit:,} it", paper, text, str(value)), None
+            return Comparison(quantity, f"{limit:,} it", paper, text, str(value))
         common = min(limit, theirs.horizon)
         value = estimate(theirs.final(column, common), **fmt)
         seeds = f", {count_text([original.seeds], 'distinct logs')}"
-        row = Comparison(
+        if self.inferred(run) is not None:
+            seeds += ", attack inferred"
+        return Comparison(
             quantity,
             f"{common:,} it",
             paper,
             f"{value}{seeds}",
             str(estimate(ours.final(column, common), **fmt)),
         )
-        return row, value
 
     def finals(
         self, run: RunRecord, column: str, until: int
     ) -> tuple[np.ndarray, np.ndarray | None]:
         """Per seed (per log), `column`'s final value of `run` and of the original code's
-        log at its exact settings, both at their common horizon (≤ `until`); None for the
-        original without a log that has the column."""
+        logs a cause may rest on (`original`), both at their common horizon (≤ `until`);
+        None for the original without such a log that has the column."""
         ours = run.curves
         limit = min(ours.horizon, until)
         log = self.original(run, limit)
@@ -181,7 +196,7 @@ def c1a(data: Runs) -> Claim:
             continue
         margin = estimate(run.per_seed("eval/adversary_margin_env"), 2, signed=True)
         judged = judging.above(margin, 0.0, "margin")
-        row, original = data.compare(
+        row = data.compare(
             f"{env} self-centered margin",
             "> 0",
             run,
@@ -190,8 +205,8 @@ def c1a(data: Runs) -> Claim:
             signed=True,
         )
         if judged is None:
-            agrees = None if original is None else original.lo > 0
             ours, theirs = data.finals(run, "eval/adversary_margin_env", run.curves.horizon)
+            agrees = None if theirs is None else estimate(theirs).lo > 0
             judged = data.cause(run, f"margin {margin} not above 0", agrees, ours, theirs)
         parts[env] = judged
         numbers.append(row)
@@ -290,11 +305,15 @@ def _speed_text(pairs: dict[str, tuple[list, list]]) -> str:
 
 
 def _pooled_logs(data: Runs, pair, column: str, horizon: int):
-    """The original code's logs at both runs' exact settings, every log directory that
-    reaches the common horizon (≤ `horizon`: the longest directory of each run bounds it)
-    pooled: (horizon, {criterion: (clean, self-centered) per-seed iterations}, seeds);
-    None where either run has no log with `column`."""
-    logs = [[r for r in data.table.originals_for(run) if r.curves.has(column)] for run in pair]
+    """The original code's logs at both runs' exact settings that record their attack
+    (not `RunRecord.attack_inferred`), every log directory that reaches the common horizon
+    (≤ `horizon`: the longest directory of each run bounds it) pooled: (horizon,
+    {criterion: (clean, self-centered) per-seed iterations}, seeds); None where either run
+    has no log with `column`."""
+    logs = [
+        [r for r in data.table.originals_for(run) if r.curves.has(column) and not r.attack_inferred]
+        for run in pair
+    ]
     if not all(logs):
         return None
     common = min([horizon] + [max(r.curves.horizon for r in found) for found in logs])
@@ -444,7 +463,7 @@ def _c2_row(data: Runs, c: float, found: dict[str, RunRecord]) -> Claim:
             parts[env] = _missing()
             continue
         quantity = f"{env} fake-incentive (C = {c:g}) success"
-        row, _ = data.compare(quantity, "~0", run, "eval/success")
+        row = data.compare(quantity, "~0", run, "eval/success")
         numbers.append(row)
         parts[env] = _c2_part(data, run)
     where = "the original code's" if c == CODE_AMOUNT else "the paper's text's"
@@ -534,7 +553,7 @@ def c3(data: Runs) -> Claim:
         structure = judging.structure_text(params, run.adversary, reachable)
         final = estimate(run.per_seed("eval/success"))
         claimed = "solved" if reachable else "0"
-        row, original = data.compare(f"{env} bypass success", claimed, run, "eval/success")
+        row = data.compare(f"{env} bypass success", claimed, run, "eval/success")
         numbers.append(row)
         if not reachable:  # structural: the env's rules decide; the runs must agree
             lines.append(f"{env} structural: {structure}; measured {final}")
@@ -552,8 +571,8 @@ def c3(data: Runs) -> Claim:
             if final.mean >= SOLVED:
                 parts[env] = verdicts.reproduced(f"evidence, solved: {final}")
             else:
-                agrees = None if original is None else original.mean >= SOLVED
                 ours, theirs = data.finals(run, "eval/success", run.curves.horizon)
+                agrees = None if theirs is None else float(np.mean(theirs)) >= SOLVED
                 parts[env] = data.cause(
                     run, f"evidence: success {final} not ≥ {SOLVED:g}", agrees, ours, theirs
                 )
@@ -639,7 +658,7 @@ def reverse(data: Runs, env: str, run: RunRecord) -> Reverse:
     if longer_run:
         late = f"{env} {full.mean - budget.mean:+.3f} from {cut:,} to {curves.horizon:,} it"
     claimed = "0" if want_low else "not 0"
-    number = data.compare(f"{env} reverse success", claimed, run, "eval/success", cut)[0]
+    number = data.compare(f"{env} reverse success", claimed, run, "eval/success", cut)
     return Reverse(verdict, line, late, number)
 
 
