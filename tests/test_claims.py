@@ -624,6 +624,7 @@ def test_a_log_whose_attack_is_inferred_is_shown_but_grounds_no_cause(tmp_path):
         assert f"{shown} distinct logs, attack inferred" in row.original
         verdict = attack_claims.reverse(data, "ER(2,1)", ours).at_budget
         assert verdict.kind == verdicts.INCONCLUSIVE, verdict
+        assert "er2_1_policy_det" in verdict.reason and "attack" in verdict.reason
     assert "er2_1_policy_det" in verdict.reason and "do not record their attack" in verdict.reason
 
 

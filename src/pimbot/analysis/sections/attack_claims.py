@@ -102,13 +102,20 @@ class Runs:
         rank: bool = False,
     ) -> Verdict:
         """`judging.disagreement`, naming the original code's logs at other settings where
-        none matches `run`: a comparison across attack parameters is only inconclusive."""
-        other = (self.inferred(run) or self.elsewhere(run)) if agrees is None else None
+        none matches `run`: a comparison across attack parameters is only inconclusive;
+        logs at its settings whose attack is inferred are named, never tested."""
+        inferred = self.inferred(run)
+        other = (inferred or self.elsewhere(run)) if agrees is None else None
         if other is not None:
             return verdicts.inconclusive(
                 f"{reason}; {other}: not comparable, so no cause can be named"
             )
-        return judging.disagreement(reason, agrees, ours, theirs, rank)
+        verdict = judging.disagreement(reason, agrees, ours, theirs, rank)
+        if inferred is None:
+            return verdict
+        return dataclasses.replace(
+            verdict, reason=f"{verdict.reason}; not tested against {inferred}"
+        )
 
     def compare(
         self,
