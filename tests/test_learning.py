@@ -1,7 +1,7 @@
 """Small learning checks: the learners are run on several seeds and judged on measured success.
 
 Budgets are cut from the published ones to keep the suite short; the full-budget
-numbers come from `pimbot train` (see docs/lio.md and docs/results).
+numbers come from the paper suite (see docs/lio.md and docs/report/report.md).
 """
 
 import numpy as np

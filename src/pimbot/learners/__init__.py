@@ -125,7 +125,8 @@ for _definition in (
             "stag_hunt_matrix-v0": _RECIPROCATOR_MATRIX | _RECIPROCATOR_W1,
         },
         # The original IPD trainer plays 32-step episodes; with 5 the Reciprocator's
-        # cooperation stalls at 0.5-0.7 (docs/results/reciprocators.md). NL shares it.
+        # cooperation stalled well short of it in earlier runs (docs/reciprocators.md).
+        # NL shares it.
         env_params={"ipd-v0": {"max_steps": 32}},
     ),
     LearnerDef(

@@ -254,7 +254,7 @@ def profile_jobs(scale: Scale) -> list[Job]:
 
 GRUDGE = (("grudge", "one_step"),)
 """Stag Hunt gridworld Reciprocator runs use the original IPD agent's one-step grudge with the
-learned VoI (docs/results/reciprocators.md); on the IPD that agent is the default, on Escape
+learned VoI (docs/reciprocators.md); on the IPD that agent is the default, on Escape
 Room the PIMbot script's learner settings with the credit-only "petty" balance are."""
 SPEC_BALANCE = (
     ("voi", "learned"),
@@ -272,7 +272,7 @@ its learner settings are the registry's Escape Room defaults (PPO lr 1e-4, γ 0.
 0.01, w 5, the credit-only petty balance, VoI lr 1e-3), which play 128 episodes per update;
 the script plays one episode per update, 5000 episodes (and logs no success). Each refit
 step evaluates its few stored samples once, weighted by their draws: the same loss as every
-draw, about 10× faster at one episode per update (docs/results/reciprocators.md)."""
+draw, about 10× faster at one episode per update (docs/reciprocators.md)."""
 CODE_ER_EPISODES = 5000
 RECIPROCATOR_ER_UPDATES = 300
 """Updates of the C7 Escape Room runs at the defaults' 128 episodes per update."""
@@ -379,7 +379,7 @@ DEFENSE_SETTINGS = (
 )
 """Reduced from the attack budgets (ER(2,1) 20k of 50k, ER(4,3) 10k of 25k, IPD 10k of
 20k) so the defended matrix fits 2 cores; the no-defense column is the attack group's
-runs read up to the same iteration (docs/results/defenses.md)."""
+runs read up to the same iteration (docs/defenses.md#measured)."""
 
 DEFENSE_SETS = {
     "guard": ("incentive_guard",),

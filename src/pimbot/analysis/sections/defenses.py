@@ -53,7 +53,7 @@ def section(table: RunTable, ctx: Context) -> Section | None:
             "no-defense column is the attack group's runs read up to the same iteration. "
             "Receiver-side defenses cannot stop pure policy attacks in a non-redundant task "
             "(bypass in ER(2,1), ER(4,3)): no incentive is involved, by design. Settings, "
-            "interpretation and what no defense can stop: docs/results/defenses_discussion.md.",
+            "interpretation and what no defense can stop: docs/defenses.md.",
         ],
         figures=[figure],
         tables=metric_tables(cells) + [detection_table(cells), cost_table(cells, timing)],

@@ -96,7 +96,7 @@ def section(table: RunTable, ctx: Context) -> Section | None:
             "with rows at the script's own batch of one episode per update; on the Stag "
             "Hunt gridworld the learned VoI with the one-step grudge. NL = the same PPO with "
             "reciprocal weight 0 (also the self-centered adversary). Details and the reasons "
-            "for the iteration budgets: docs/reciprocators.md, docs/results/reciprocators.md. "
+            "for the iteration budgets: docs/reciprocators.md. "
             f"{interval_text(r.seeds for r in runs)}."
         ],
     )
