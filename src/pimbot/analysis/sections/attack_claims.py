@@ -71,16 +71,16 @@ class Runs:
         return self.table.original_for(run, horizon, recorded=True)
 
     def inferred(self, run: RunRecord) -> str | None:
-        """What the original code's logs at `run`'s settings whose attack is only inferred
-        are (None: there are none): shown, never the ground of a cause."""
+        """The original code's logs at `run`'s settings whose attack is only inferred, named
+        (None: there are none): shown, never the ground of a cause."""
         logs = [r for r in self.table.originals_for(run) if r.attack_inferred]
         if not logs:
             return None
         names = ", ".join(r.setting for r in logs)
         why = logs[0].config["original"].get("attack_evidence", "")
         return (
-            f"the original code's logs at these settings ({names}) do not record their "
-            f"attack (inferred: {why})"
+            f"the original code's logs {names}, whose names do not record their attack "
+            f"(inferred: {why})"
         )
 
     def elsewhere(self, run: RunRecord) -> str | None:
