@@ -1,13 +1,13 @@
 #!/usr/bin/env bash
-# Regenerates docs/robot from the trained Escape Room run directories (runs/attacks/er*_*,
-# made by the attack experiments): the physics-vs-abstract table (robot.md), the rendered
-# frame and episode GIF, and the throughput benchmark. About 45 min on 2 busy CPU cores.
+# Regenerates docs/robot from the trained Escape Room run directories (SUITE/attacks/er*_*,
+# made by the attack experiments): the harsh-physics table (robot_harsh.md), the rendered
+# frames and episode GIF, and the throughput benchmark. The nominal physics-vs-abstract
+# table is the report's robot section (the suite's robot/* jobs). About 10 min on 2 cores.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 . .venv/bin/activate
 RUNS=${1:-runs/attacks}
 OUT=${2:-runs/robot}
-python -m pimbot.robot.results "$RUNS" "$OUT/er_k10" --episodes 10 --table docs/robot/robot.md
 # The same policies under harsh physics (6x actuation noise, 5x odometry noise, 15 s per decision).
 python -m pimbot.robot.results "$RUNS" "$OUT/er_harsh_k10" --episodes 10 \
   --runs er21_clean er21_bypass er42_clean er42_bypass er43_clean er43_bypass \
