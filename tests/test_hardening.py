@@ -270,6 +270,37 @@ def test_strings_from_run_directories_are_escaped_in_the_html_report(tmp_path):
     assert "<script>alert" not in html and "<img src=x" not in html  # ... never run
 
 
+def test_reading_a_run_while_it_saves_checkpoints_neither_breaks_it_nor_misreads_it(tmp_path):
+    """`pimbot export` or a report may read a run that is training: the reader changes
+    nothing, and sees a whole checkpoint at every moment of the writer's saves."""
+    import threading
+
+    saved, errors = {}, []
+
+    def writer():
+        try:
+            for iteration in range(1, 301):
+                state = f"state at {iteration}".encode() * 50
+                saved[iteration] = state
+                store.save_checkpoint(tmp_path, state, iteration)
+        except BaseException as error:  # the writer must never fail
+            errors.append(error)
+
+    thread = threading.Thread(target=writer)
+    thread.start()
+    reads = 0
+    while thread.is_alive():
+        found = store.load_checkpoint(tmp_path)
+        if found is not None:
+            state, iteration = found
+            assert state == saved[iteration]
+            reads += 1
+    thread.join()
+    assert not errors, errors
+    assert reads > 0
+    assert store.load_checkpoint(tmp_path) == (saved[300], 300)
+
+
 @pytest.mark.parametrize("killed_before", ["state", "meta.json", "pending removal"])
 def test_a_checkpoint_write_killed_between_its_files_resumes(tmp_path, monkeypatch, killed_before):
     """A process killed inside `save_checkpoint` (the sweep ends its workers at any point)
@@ -296,6 +327,11 @@ def test_a_checkpoint_write_killed_between_its_files_resumes(tmp_path, monkeypat
         store.save_checkpoint(tmp_path, b"new state", 200)
     monkeypatch.undo()
     expected = (b"old state", 100) if killed_before == "state" else (b"new state", 200)
+    before = sorted((p.name, p.read_bytes()) for p in (tmp_path / store.CHECKPOINT_DIR).iterdir())
+    assert store.load_checkpoint(tmp_path) == expected  # a reader sees it settled ...
+    after = sorted((p.name, p.read_bytes()) for p in (tmp_path / store.CHECKPOINT_DIR).iterdir())
+    assert after == before  # ... and changes nothing: the run may be in use
+    store.settle_checkpoint(tmp_path)  # the writer, on resuming, completes it
     assert store.load_checkpoint(tmp_path) == expected
     assert not (tmp_path / store.CHECKPOINT_DIR / store.PENDING_META).exists()
     assert (

@@ -2,7 +2,7 @@
 # Regenerates docs/robot from the trained Escape Room run directories (SUITE/attacks/er*_*,
 # made by the attack experiments): the harsh-physics table (robot_harsh.md), the rendered
 # frames and episode GIF, and the throughput benchmark. The nominal physics-vs-abstract
-# table is the report's robot section (the suite's robot/* jobs). About 10 min on 2 cores.
+# table is the report's robot section (the suite's robot/* jobs). About 15 min on 2 cores.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 . .venv/bin/activate

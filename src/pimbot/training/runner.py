@@ -442,6 +442,7 @@ def _restore(states, run_dir: Path, seeds: int):
     """(`states`, every seed's initial state, replaced by the checkpoint's; the iterations
     it has done), or (`states`, 0) without a checkpoint. DamagedRunDir when the checkpoint
     does not load, or holds a state at another iteration than its metadata says."""
+    store.settle_checkpoint(run_dir)  # the writer (holding the run's lock) completes it
     saved = store.load_checkpoint(run_dir)
     if saved is None:
         return states, 0

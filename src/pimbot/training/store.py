@@ -7,7 +7,9 @@ killed at any moment resumes with no duplicated or missing rows.
 Reads are checked: a JSON file that does not parse, a checkpoint whose bytes do
 not match the SHA-256 its metadata records, and a metrics.csv that lacks rows the
 checkpoint has passed raise `DamagedRunDir`, one line saying what is wrong and
-how to recover, instead of resuming from something silently different.
+how to recover, instead of resuming from something silently different. Reads never
+change a run directory, which may be training: only the run's writer, holding its lock,
+completes a checkpoint write that a killed process left (`settle_checkpoint`).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import math
 import os
 import shutil
 import subprocess
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -166,21 +169,32 @@ def save_checkpoint(run_dir: Path, state_bytes: bytes, iteration: int) -> None:
     (ckpt / PENDING_META).unlink()
 
 
-def _settle_pending(ckpt: Path) -> None:
+def settle_checkpoint(run_dir: Path) -> None:
     """Completes or drops a checkpoint write that a killed process left (`save_checkpoint`):
     where the state is the pending one (killed after replacing the state), its metadata
-    becomes meta.json; otherwise the state was not replaced and the old checkpoint stands."""
+    becomes meta.json; otherwise the state was not replaced and the old checkpoint stands.
+    Only the run's writer calls this, holding the run's lock (`locked`): readers never
+    change a run directory, which may be in use."""
+    ckpt = run_dir / CHECKPOINT_DIR
+    if not (ckpt / PENDING_META).exists():
+        return
     pending = read_json(ckpt / PENDING_META)
     state = ckpt / STATE_FILE
-    digest = pending.get("sha256") if isinstance(pending, dict) else None
-    if state.exists() and digest == hashlib.sha256(state.read_bytes()).hexdigest():
+    if state.exists() and pending.get("sha256") == hashlib.sha256(state.read_bytes()).hexdigest():
         os.replace(ckpt / PENDING_META, ckpt / STATE_META)
     else:
         (ckpt / PENDING_META).unlink()
 
 
+_READ_ATTEMPTS = 10
+"""How often a reader rereads a checkpoint whose state matches neither metadata file
+(0.1 s apart): the run's process may be between two steps of `save_checkpoint`."""
+
+
 def load_checkpoint(run_dir: Path) -> tuple[bytes, int] | None:
-    """(state bytes, iteration) of the last checkpoint, or None.
+    """(state bytes, iteration) of the last checkpoint, or None. Reads only, so it is safe
+    beside a run that is training: a write that a killed process left half done reads as
+    what `settle_checkpoint` will make of it, and one in progress is waited out.
 
     Raises:
         DamagedRunDir: the metadata is unreadable or the state bytes do not match it.
@@ -188,20 +202,49 @@ def load_checkpoint(run_dir: Path) -> tuple[bytes, int] | None:
     ckpt = run_dir / CHECKPOINT_DIR
     if ckpt.exists() and not ckpt.is_dir():
         raise DamagedRunDir(f"{ckpt}: damaged (not a directory); {RESTART_HINT}")
-    if (ckpt / PENDING_META).exists():
-        _settle_pending(ckpt)
-    if not (ckpt / STATE_META).exists() and not (ckpt / STATE_FILE).exists():
-        return None
-    if not (ckpt / STATE_META).exists() or not (ckpt / STATE_FILE).exists():
-        missing = STATE_META if not (ckpt / STATE_META).exists() else STATE_FILE
-        raise DamagedRunDir(f"{ckpt}: damaged ({missing} is missing); {RESTART_HINT}")
-    meta = read_json(ckpt / STATE_META)
-    state_bytes = (ckpt / STATE_FILE).read_bytes()
-    iteration = meta.get("iteration") if isinstance(meta, dict) else None
+    for attempt in range(_READ_ATTEMPTS):
+        try:
+            return _read_checkpoint(ckpt, last=attempt == _READ_ATTEMPTS - 1)
+        except _TornRead:
+            time.sleep(0.1)
+    raise DamagedRunDir(
+        f"{ckpt}: damaged (its files changed on each of {_READ_ATTEMPTS} reads, or a write "
+        f"was left without its {STATE_META}); {RESTART_HINT}"
+    )
+
+
+class _TornRead(Exception):
+    """The checkpoint's files changed while they were read (a write in progress)."""
+
+
+def _read_checkpoint(ckpt: Path, last: bool) -> tuple[bytes, int] | None:
+    """One read of `load_checkpoint`; _TornRead where the state matches neither the
+    pending nor the committed metadata and `last` is False."""
+    try:
+        pending = read_json(ckpt / PENDING_META) if (ckpt / PENDING_META).exists() else None
+        if not (ckpt / STATE_FILE).exists():
+            if (ckpt / STATE_META).exists():
+                raise DamagedRunDir(f"{ckpt}: damaged ({STATE_FILE} is missing); {RESTART_HINT}")
+            return None  # nothing saved yet, or the first save has not written its state
+        state_bytes = (ckpt / STATE_FILE).read_bytes()
+        digest = hashlib.sha256(state_bytes).hexdigest()
+        if pending is not None and pending.get("sha256") == digest:
+            meta, meta_path = pending, ckpt / PENDING_META
+        elif (ckpt / STATE_META).exists():
+            meta, meta_path = read_json(ckpt / STATE_META), ckpt / STATE_META
+        elif pending is None:
+            raise DamagedRunDir(f"{ckpt}: damaged ({STATE_META} is missing); {RESTART_HINT}")
+        else:
+            raise _TornRead  # the first save, between its state and its meta.json
+    except FileNotFoundError:  # a file went between our looking and reading: a write
+        raise _TornRead from None
+    iteration = meta.get("iteration")
     if isinstance(iteration, bool) or not isinstance(iteration, int) or iteration < 0:
-        raise DamagedRunDir(f"{ckpt / STATE_META}: damaged (no valid iteration); {RESTART_HINT}")
-    digest = meta.get("sha256")
-    if digest is not None and hashlib.sha256(state_bytes).hexdigest() != digest:
+        raise DamagedRunDir(f"{meta_path}: damaged (no valid iteration); {RESTART_HINT}")
+    recorded = meta.get("sha256")
+    if recorded is not None and recorded != digest:
+        if not last:
+            raise _TornRead
         raise DamagedRunDir(
             f"{ckpt / STATE_FILE}: damaged (its SHA-256 differs from the one recorded at "
             f"iteration {iteration}: the file was changed); {RESTART_HINT}"
