@@ -534,7 +534,7 @@ def test_original_code_rows_at_the_common_horizon(tmp_path):
     data = attack_claims.Runs(table, {(ours.env, ours.condition): ours})
     row = data.compare("q", "~0", ours, "eval/success")
     assert row.horizon == "5,000 it" and row.pimbot.startswith("1.000")
-    assert row.original.startswith("0.500") and "2 distinct logs" in row.original
+    assert row.original.startswith("0.500") and "2 original seeds" in row.original
     row = data.compare("q", "~0", c50, "eval/success")
     assert row.horizon == "10,000 it"
     assert row.original.startswith("not compared") and "amount 10" in row.original
@@ -574,7 +574,7 @@ def test_every_log_directory_at_the_runs_settings_is_read(tmp_path):
     assert table.original_for(ours, 6000).seeds == 10  # none reaches: all at the longest
     data = attack_claims.Runs(table, {(ours.env, ours.condition): ours})
     row = data.compare("q", "0", ours, "eval/success")
-    assert "10 distinct logs" in row.original and "inferred" not in row.original
+    assert "10 original seeds" in row.original and "inferred" not in row.original
     alone = statistics.difference_p_value(ours.curves.final("eval/success"), np.zeros(5))
     pooled = statistics.difference_p_value(
         ours.curves.final("eval/success"), log.curves.final("eval/success")
@@ -621,7 +621,7 @@ def test_a_log_whose_attack_is_inferred_is_shown_but_grounds_no_cause(tmp_path):
         assert table.original_for(ours, recorded=True) is (a2d if len(originals) == 2 else None)
         data = attack_claims.Runs(table, {(ours.env, ours.condition): ours})
         row = data.compare("q", "0", ours, "eval/success")
-        assert f"{shown} distinct logs, attack inferred" in row.original
+        assert f"{shown} original seeds, attack inferred" in row.original
         verdict = attack_claims.reverse(data, "ER(2,1)", ours).at_budget
         assert verdict.kind == verdicts.INCONCLUSIVE, verdict
         assert "er2_1_policy_det" in verdict.reason and "attack" in verdict.reason

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from pimbot import envs
-from pimbot.analysis import original_code
+from pimbot.analysis import original_code, runs
 from pimbot.analysis.runs import load_table
 from pimbot.training import store
 from pimbot.training.summary import summarize
@@ -29,7 +29,8 @@ def test_packaged_runs_load_as_original_code():
             original_code.REPOSITORY,
             original_code.COMMIT,
         )
-        assert record.learner == "lio" and record.seeds == info["distinct_files"]
+        assert record.learner == "lio" and record.seeds == len(info["seeds"])
+        assert record.seeds + info["reruns_merged"] == info["distinct_files"]
         assert record.iterations == record.identity["iterations"]
         assert all(p.endswith("/log.csv") for s in info["seeds"] for p in s["paths"])
 
@@ -49,12 +50,45 @@ def test_byte_identical_logs_count_once():
     for run_dir in original_code.run_dirs():
         info = original_code.original_info(run_dir)
         seeds = info["seeds"]
-        assert len({s["sha256"] for s in seeds}) == len(seeds) == info["distinct_files"]
-        assert info["copies_merged"] == sum(len(s["paths"]) - 1 for s in seeds)
+        assert len({s["sha256"] for s in seeds}) == len(seeds)
+        assert len(seeds) + info["reruns_merged"] == info["distinct_files"]
+        assert info["copies_merged"] == info["files"] - info["distinct_files"]
         assert all(hashes[s["sha256"]] >= len(s["paths"]) for s in seeds)
     # ER(4,2) at 20k: 19 "seeds" in the repository, one file
     one = original_code.original_info(original_code.ROOT / "er_20k" / "er_n2_1_pure_LIO")
     assert (one["files"], one["distinct_files"], one["copies_merged"]) == (19, 1, 18)
+
+
+def test_reruns_of_one_random_seed_count_once():
+    """Logs that open with the same evaluation rows are reruns of one random seed: one
+    seed, in a directory and across the directories pooled at one setting."""
+    head = b"episode,success\n"
+    logs = original_code.distinct_logs(
+        [
+            ("r/1/log.csv", head + b"100,0.1\n200,0.2\n300,0.3\n400,0.4\n"),
+            ("r/2/log.csv", head + b"100,0.1\n200,0.2\n300,0.3\n400,0.9\n"),  # drifts later
+            ("r/3/log.csv", head + b"100,0.5\n200,0.2\n300,0.3\n400,0.4\n"),  # another seed
+        ]
+    )
+    kept = original_code.one_per_seed(logs)
+    assert [(first.paths[0], [r.paths[0] for r in reruns]) for first, reruns in kept] == [
+        ("r/1/log.csv", ["r/2/log.csv"]),
+        ("r/3/log.csv", []),
+    ]
+    # in the repository: ER(2,1) at 20k has 13 distinct logs of one random seed
+    info = original_code.original_info(original_code.ROOT / "er_20k" / "er_n2_1T_pure_LIO")
+    assert (len(info["seeds"]), info["distinct_files"], info["reruns_merged"]) == (1, 13, 12)
+    reruns = [f for f in original_code.manifest()["files"] if f.get("status") == "rerun"]
+    assert sum(f["run"] == "er_20k/er_n2_1T_pure_LIO" for f in reruns) >= 12
+    # the 20k IPD series' first seed is a rerun of the 30k series' seed: pooled, it counts once
+    table = load_table(original_code.ROOT)
+    found = sorted(
+        (r for r in table.original if r.setting in ("ipd_greedy", "ipd_greedy_lio")),
+        key=lambda r: r.name,
+    )
+    both = runs.pooled(found)
+    assert [r.seeds for r in found] == [5, 1] and both.seeds == 5
+    assert both.summary["reruns_dropped"] == 1
 
 
 def test_clean_er21_series_ends_where_the_original_does():

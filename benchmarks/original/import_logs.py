@@ -21,8 +21,10 @@ vocabulary (the tables below, each with its evidence):
 * the attack from the tokens of the setting's directory name (``er2_1_greedy_det`` →
   self_centered; the code itself was edited between runs, so the name is the record);
 * seeds: byte-identical files count once (SHA-256), the copies are listed; a file whose
-  bytes sit under several settings goes to the setting holding most of its copies; a
-  log that stops before its configured horizon is left out and listed.
+  bytes sit under several settings goes to the setting holding most of its copies;
+  reruns of one random seed (logs of a setting whose opening rows are identical,
+  `original_code.one_per_seed`) count once, the first in path order, the others listed
+  as reruns; a log that stops before its configured horizon is left out and listed.
 """
 
 from __future__ import annotations
@@ -347,13 +349,14 @@ def import_setting(
         leave_out(entries, [log], f"incomplete: ends at iteration {last} of {horizon}")
     if not complete:
         return None
+    seeds = original_code.one_per_seed([log for log, _ in complete])
     name, params, evidence = attack
     run = RunConfig(
         env_id=env_id,
         env_params=env_params,
         learner="lio",
         hparams=hparams,
-        seeds=len(complete),
+        seeds=len(seeds),
         iterations=horizon,
         eval_period=int(config["alg"]["period"]),
         eval_episodes=int(config["alg"]["n_eval"]),
@@ -362,17 +365,20 @@ def import_setting(
     )
     env = envs.make(env_id, **dict(env_params))
     rows, sources = [], {}
-    for seed, (log, _) in enumerate(complete):
+    for seed, (log, reruns) in enumerate(seeds):
         seed_rows, sources = original_code.metrics_rows(log.data.decode(), env, seed)
         rows += seed_rows
         for k, p in enumerate(log.paths):
             entries[p] |= {"status": "seed" if k == 0 else "copy", "seed": seed}
             if k:
                 entries[p]["copy_of"] = log.paths[0]
+        for p in (p for rerun in reruns for p in rerun.paths):
+            entries[p] |= {"status": "rerun", "seed": seed, "rerun_of": log.paths[0]}
     group = f"{game}_{horizon // 1000}k"
     label = env_label(env_id, env_parameters(env))
     claims = claims_for(label, name)
-    used = [log for log, _ in complete]
+    used = [log for log, _ in seeds]
+    read = [log for log, _ in complete]
     used_configs = [c for c, log in zip(configs, logs, strict=True) if log in used]
     original = {
         "repository": original_code.REPOSITORY,
@@ -380,22 +386,25 @@ def import_setting(
         "setting": setting,
         "attack_evidence": evidence,
         "attack_inferred": attack == POLICY_ATTACK,
-        "files": sum(len(log.paths) for log in used),
-        "distinct_files": len(used),
-        "copies_merged": sum(log.copies_merged for log in used),
+        "files": sum(len(log.paths) for log in read),
+        "distinct_files": len(read),
+        "copies_merged": sum(log.copies_merged for log in read),
+        "reruns_merged": len(read) - len(used),
         "seeds": [
             {
                 "seed": seed,
                 "sha256": log.sha256,
                 "paths": list(log.paths),
                 "config_seed": cfg["main"].get("seed"),
+                "opening_sha256": original_code.opening_digest(log.data),
+                "reruns": [rerun.paths[0] for rerun in reruns],
             }
-            for seed, (log, cfg) in enumerate(zip(used, used_configs, strict=True))
+            for seed, ((log, reruns), cfg) in enumerate(zip(seeds, used_configs, strict=True))
         ],
         "left_out": [
             {"paths": list(log.paths), "sha256": log.sha256, "ends_at": last} for log, last in short
         ],
-        "shared_opening": original_code.shared_opening([log.data for log in used]),
+        "shared_opening": original_code.shared_opening([log.data for log in read]),
         "read_by_plot_scripts": plots.get(setting, []),
         "claims": sorted(claims),
         "claim_roles": claims,
@@ -413,7 +422,7 @@ def import_setting(
         "config": config,
         "config_differences": config_differences(used_configs),
     }
-    for p in (p for log in used for p in log.paths):
+    for p in (p for log in read for p in log.paths):
         entries[p]["run"] = f"{group}/{setting}"
     metadata = original_code.run_metadata(run, original)
     columns = list(rows[0])
@@ -426,6 +435,7 @@ def import_setting(
         "condition": condition,
         "seeds": len(used),
         "copies_merged": original["copies_merged"],
+        "reruns_merged": original["reruns_merged"],
         "left_out": len(short),
         "claims": original["claims"],
     }
@@ -445,7 +455,8 @@ def main() -> None:
     for run in content["runs"]:
         print(
             f"  {run['run']:40s} {run['env']:8s} {run['condition']:34s} seeds {run['seeds']:2d}"
-            f"  copies {run['copies_merged']:2d}  left out {run['left_out']}  "
+            f"  copies {run['copies_merged']:2d}  reruns {run['reruns_merged']:2d}"
+            f"  left out {run['left_out']}  "
             f"{','.join(run['claims'])}"
         )
     for setting, reason in content["settings_left_out"].items():

@@ -148,7 +148,8 @@ def csv_table(claims: list[Claim]) -> Table:
 COMPARISON_NOTE = (
     "Each number as the paper states it, as the original PIMbot code's log.csv files give it "
     "(converted into run directories and read by the same metric code as pimbot's runs; "
-    "byte-identical copies counted once) and as pimbot measures it, at the same horizon. "
+    "byte-identical copies and reruns of one random seed counted once) and as pimbot "
+    "measures it, at the same horizon. "
     "'no log': the original code's logs do not cover it."
 )
 

@@ -200,6 +200,28 @@ def distinct_logs(files: Iterable[tuple[str, bytes]]) -> list[DistinctLog]:
     return sorted(logs, key=lambda log: natural_key(log.paths[0]))
 
 
+OPENING_ROWS = 3
+"""A log's opening: its first evaluation rows. Logs whose openings are identical in every
+column are reruns of one random seed (the original code's TF runs drift apart later):
+they count as one seed. In the repository's logs, every setting either shares its
+opening in all its logs (3 to 48 rows) or differs in the first row of every pair."""
+
+
+def opening_digest(data: bytes) -> str:
+    """SHA-256 of a log's `OPENING_ROWS` first evaluation rows (its header left out)."""
+    rows = data.decode().splitlines()[1 : 1 + OPENING_ROWS]
+    return hashlib.sha256("\n".join(rows).encode()).hexdigest()
+
+
+def one_per_seed(logs: list[DistinctLog]) -> list[tuple[DistinctLog, list[DistinctLog]]]:
+    """(the first log of each random seed, the later reruns of that seed) in the order of
+    `logs`: logs with the same `opening_digest` are reruns of one seed."""
+    seeds: dict[str, tuple[DistinctLog, list[DistinctLog]]] = {}
+    for log in logs:
+        seeds.setdefault(opening_digest(log.data), (log, []))[1].append(log)
+    return [(first, reruns[1:]) for first, reruns in seeds.values()]
+
+
 def shared_opening(logs: list[bytes]) -> dict[str, Any]:
     """How far the seeds' logs agree row for row from the start.
 
@@ -418,6 +440,8 @@ __all__ = [
     "independent_seeds",
     "manifest",
     "metrics_rows",
+    "one_per_seed",
+    "opening_digest",
     "plotted_by",
     "preferred_order",
     "run_dirs",

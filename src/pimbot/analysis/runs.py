@@ -327,15 +327,22 @@ def natural_key(text: str) -> tuple:
 def pooled(records: list[RunRecord]) -> RunRecord:
     """Several runs at the same settings as one: their seeds side by side (numbered in
     order), the columns every one has, the shortest horizon's iterations; named
-    "A + B" after the runs. One run is returned as it is."""
+    "A + B" after the runs. An original-code seed whose log opens as one already pooled
+    does (`opening_of`: a rerun of the same random seed, kept in another directory) counts
+    once: the summary's "reruns_dropped" says how many. One run is returned as it is."""
     if len(records) == 1:
         return records[0]
     columns = tuple(
         c for c in records[0].curves.columns if all(c in r.curves.columns for r in records)
     )
-    iterations, values = {}, {}
+    iterations, values, openings, dropped = {}, {}, set(), 0
     for record in records:
         for seed in record.curves.seeds:
+            opening = opening_of(record, seed)
+            if opening is not None and opening in openings:
+                dropped += 1
+                continue
+            openings.add(opening)
             number = len(iterations)
             iterations[number] = record.curves.iterations[seed]
             kept = record.curves.values[seed]
@@ -343,14 +350,24 @@ def pooled(records: list[RunRecord]) -> RunRecord:
     curves = Curves(columns, tuple(iterations), iterations, values)
     horizon = min(r.iterations for r in records)
     final = {c: {"per_seed": curves.final(c).tolist()} for c in values[0]}
+    summary = {"seeds": list(curves.seeds), "iterations": horizon, "final": final}
     return dataclasses.replace(
         records[0],
         name=" + ".join(r.name for r in records),
-        summary={"seeds": list(curves.seeds), "iterations": horizon, "final": final},
+        summary=summary | ({"reruns_dropped": dropped} if dropped else {}),
         seeds=len(iterations),
         iterations=horizon,
         curves=curves,
     )
+
+
+def opening_of(record: RunRecord, seed: int) -> str | None:
+    """The SHA-256 of an original-code seed's opening log rows (the import's
+    `opening_sha256`; logs that open alike are reruns of one random seed), None for
+    pimbot's own runs."""
+    seeds = record.config.get("original", {}).get("seeds", [])
+    found = next((s for s in seeds if s.get("seed") == seed), None)
+    return found.get("opening_sha256") if found else None
 
 
 def load_record(suite_dir: Path, name: str) -> RunRecord:

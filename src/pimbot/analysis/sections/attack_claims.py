@@ -35,7 +35,7 @@ from pimbot.analysis import judging, verdicts
 from pimbot.analysis.claims import Claim, Comparison
 from pimbot.analysis.document import count_text
 from pimbot.analysis.judging import PAPER_ATTACK_BUDGET, iteration_text
-from pimbot.analysis.runs import CLEAN, RunRecord, RunTable, settings_difference
+from pimbot.analysis.runs import CLEAN, RunRecord, RunTable, pooled, settings_difference
 from pimbot.analysis.tables import Table, difference, estimate
 from pimbot.analysis.verdicts import Verdict
 from pimbot.statistics import difference_p_value
@@ -143,7 +143,7 @@ class Runs:
             return Comparison(quantity, f"{limit:,} it", paper, text, str(value))
         common = min(limit, theirs.horizon)
         value = estimate(theirs.final(column, common), **fmt)
-        seeds = f", {count_text([original.seeds], 'distinct logs')}"
+        seeds = f", {count_text([original.seeds], 'original seeds')}"
         if self.inferred(run) is not None:
             seeds += ", attack inferred"
         return Comparison(
@@ -324,15 +324,15 @@ def _pooled_logs(data: Runs, pair, column: str, horizon: int):
     if not all(logs):
         return None
     common = min([horizon] + [max(r.curves.horizon for r in found) for found in logs])
-    pooled = {k: ([], []) for k in CRITERIA}
+    by_criterion = {k: ([], []) for k in CRITERIA}
     counts = []
     for side, found in enumerate(logs):
         reach = [r for r in found if r.curves.horizon >= common]
-        counts.append(sum(r.seeds for r in reach))
-        for r in reach:
-            for k, values in crossings(r.curves, column, common).items():
-                pooled[k][side].extend(values)
-    return common, pooled, counts
+        logs_of_side = pooled(sorted(reach, key=lambda r: r.name))  # reruns count once
+        counts.append(logs_of_side.seeds)
+        for k, values in crossings(logs_of_side.curves, column, common).items():
+            by_criterion[k][side].extend(values)
+    return common, by_criterion, counts
 
 
 def _speed_verdict(data: Runs, pair, column, ours, horizon, paper_clean, logs) -> Verdict:
