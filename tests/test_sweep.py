@@ -206,18 +206,26 @@ def test_interrupting_the_driver_alone_ends_its_running_jobs_and_workers(tmp_pat
     assert not alive, "workers outlived the interrupted sweep"
 
 
-def test_progress_counts_a_running_groups_finished_jobs_and_lists_only_started_ones(tmp_path):
+def test_progress_counts_a_running_groups_finished_jobs_and_lists_only_running_ones(tmp_path):
     """A group reports its jobs when its last one ends: the headline counts a job whose
-    summary is written as done meanwhile, and the running list leaves out finished and
-    queued jobs."""
+    summary is written as done meanwhile, and the running list holds only the job a
+    worker holds the lock of: not a finished one, nor a queued one that an earlier
+    sitting started (its directory is there)."""
+    import fcntl
+
     finished, training, queued = TRAIN_JOBS
     (tmp_path / finished.name).mkdir(parents=True)
     (tmp_path / finished.name / store.SUMMARY).write_text("{}")
-    (tmp_path / training.name).mkdir(parents=True)
+    for job in (training, queued):
+        (tmp_path / job.name).mkdir(parents=True)
+    store.lock_path(tmp_path / queued.name).touch()  # left by the earlier sitting's worker
     display = sweep.SweepDisplay(TRAIN_JOBS, tmp_path, {}, enabled=False)
     display.start([job.name for job in TRAIN_JOBS])
     assert display.headline().startswith(f"jobs 1/{len(TRAIN_JOBS)} done")
-    assert [name for name, _ in display.running()] == [training.name]
+    with open(store.lock_path(tmp_path / training.name), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # what the worker running it holds
+        assert [name for name, _ in display.running()] == [training.name]
+    assert display.running() == []
 
 
 def test_ray_backend_gives_the_same_metrics_as_local(reference, tmp_path):

@@ -681,13 +681,14 @@ class SweepDisplay:
         return self.done | written
 
     def running(self) -> list[tuple[str, float]]:
-        """(name, fraction done) of the jobs started and not yet finished (queued jobs,
-        and finished jobs of a task still running, left out)."""
+        """(name, fraction done) of the jobs a worker is running now: those whose lock is
+        held (`store.in_use`). Queued jobs are left out, a job an earlier sitting started
+        included, and so are the finished jobs of a task still running."""
         finished = self._finished_on_disk()
         return [
             (n, job_progress(self.suite_dir, self.jobs[n]))
             for n in self.active
-            if n not in finished and job_dir(self.suite_dir, self.jobs[n]).exists()
+            if n not in finished and store.in_use(job_dir(self.suite_dir, self.jobs[n]))
         ]
 
     def headline(self) -> str:

@@ -74,6 +74,21 @@ def locked(run_dir: Path) -> Iterator[None]:
         yield
 
 
+def in_use(run_dir: Path) -> bool:
+    """Whether a process holds `run_dir`'s lock now (training it: `locked`, or a sweep
+    worker running its job). Tested with a shared lock that is released at once."""
+    path = lock_path(run_dir)
+    if not path.exists():
+        return False
+    with open(path) as lock:
+        try:
+            fcntl.flock(lock, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return True
+        fcntl.flock(lock, fcntl.LOCK_UN)
+    return False
+
+
 def clear_run(run_dir: Path) -> None:
     """Removes what a run wrote in `run_dir` (for --restart); other files stay."""
     run_dir = Path(run_dir)
