@@ -194,7 +194,7 @@ def test_verdict_kinds_are_styled_and_marked(built):
     markdown = markdown_report.render(rendered)
     assert "**✔ reproduced (quick budget)**" in markdown
     assert "**✘ refuted — cause: our budget or setting** — x" in markdown
-    assert "◐ inconclusive (too few seeds or iterations)** — 3 seeds" in markdown
+    assert "◐ inconclusive** — 3 seeds" in markdown
     assert "○ not run" in markdown
     assert "**✘ refuted — cause: our spec** — 0.2 < 0.8" in markdown
     assert "**✔ reproduced at the paper's budget** — 0.01 at 25k" in markdown
@@ -203,7 +203,7 @@ def test_verdict_kinds_are_styled_and_marked(built):
     assert (
         "part 35; … (in full below)" in markdown and "part 98" not in markdown.split("Measured")[0]
     )
-    assert "**C7**: m. Verdict: inconclusive (too few seeds or iterations): part 0;" in markdown
+    assert "**C7**: m. Verdict: inconclusive: part 0;" in markdown
     assert "part 98" in markdown
     # A compact measured cell; the full text below the table, linked.
     assert "| short ([details](#claim-c2)) |" in markdown

@@ -7,7 +7,9 @@ A claim is judged as the paper states it, at the paper's budget, and gets one of
 - "refuted — cause: …": it disagrees, and the disagreement is classified as our
   implementation, our budget or setting, our spec, or the paper (its claim contradicts
   its own environment, metric or code);
-- "inconclusive (too few seeds or iterations)": the runs cannot decide it.
+- "inconclusive": the evidence cannot decide it; the reason says what is missing (seeds
+  or iterations to tell the runs apart, a log of the original code at the same settings
+  to name a cause, a baseline that succeeds without the attack, a machine to itself).
 Every refuted or inconclusive verdict carries a one-line reason written from the
 measured numbers; there is no bare "not reproduced".
 
@@ -40,7 +42,7 @@ LABELS = {
     REPRODUCED: "reproduced",
     AT_BUDGET: "reproduced at the paper's budget",
     REFUTED: "refuted",
-    INCONCLUSIVE: "inconclusive (too few seeds or iterations)",
+    INCONCLUSIVE: "inconclusive",
     NOT_RUN: "not run",
 }
 MARKERS = {REPRODUCED: "✔", AT_BUDGET: "✔", REFUTED: "✘", INCONCLUSIVE: "◐", NOT_RUN: "○"}
@@ -48,7 +50,7 @@ LEGEND = {
     REPRODUCED: "reproduced",
     AT_BUDGET: "reproduced at the paper's budget (not at our longer horizon)",
     REFUTED: "refuted, with its cause: " + " | ".join(CAUSES),
-    INCONCLUSIVE: "inconclusive (too few seeds or iterations)",
+    INCONCLUSIVE: "inconclusive: the evidence cannot decide it (the reason says what is missing)",
     NOT_RUN: "not run (some of the claim's runs have not finished)",
 }
 
