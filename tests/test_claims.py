@@ -470,6 +470,17 @@ def test_c7_er_shortfall_classified_by_the_transfer_counterfactual(tmp_path):
     assert judged.judged.kind == verdicts.INCONCLUSIVE and not judged.judged.causes
     assert "ER(4,2) baseline, the original code's batch of one" in judged.judged.reason
     assert "0.95" not in judged.judged.reason  # the reproduced part does not decide it
+    # By the interval, not the mean: a baseline whose seeds straddle 0.8 is undecided,
+    # and an ADMO success whose interval reaches above the bound is not "below" it.
+    wide = [
+        run("wide", lambda s: (1.0, 0.65)[s % 2]),  # 1 .65 1 .65 1: mean 0.86
+        run("wide_admo", lambda s: (0.0, 0.6)[s % 2], attack="admo"),  # mean 0.24
+    ]
+    judged = reciprocators.c7(wide).judged
+    assert judged.kind == verdicts.INCONCLUSIVE, judged
+    assert "ER(4,2) baseline: clean 0.860 [" in judged.reason
+    assert "ER(4,2) ADMO: ADMO success 0.240 [" in judged.reason
+    assert judged.reason.count("the interval includes") == 2
 
 
 def test_claims_table_at_the_quick_budget():

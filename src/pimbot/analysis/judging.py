@@ -59,6 +59,18 @@ def above(est: Estimate | None, bound: float, what: str) -> Verdict | None:
     return verdicts.inconclusive(f"{what} {est}: the interval includes {bound:g}")
 
 
+def below(est: Estimate, bound: float, what: str) -> Verdict | None:
+    """`what` < bound, the mirror of `above`: reproduced if the whole interval is below;
+    None (evidence against, for the caller to classify) if the interval lies at or above,
+    or straddles with its mean at or above; inconclusive if it straddles with the mean
+    below."""
+    if est.hi < bound:
+        return verdicts.reproduced(f"{what} {est} < {bound:g}")
+    if est.lo >= bound or est.mean >= bound:
+        return None
+    return verdicts.inconclusive(f"{what} {est}: the interval includes {bound:g}")
+
+
 def falls_to_zero(
     early: np.ndarray, final: np.ndarray, resolution: float, what: str = "success"
 ) -> Verdict | None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 from pimbot import envs, learners
 from pimbot.analysis import judging, plots, verdicts
 from pimbot.analysis.claims import CLAIM_TEXT, Claim, Comparison
@@ -228,11 +230,8 @@ def c7(runs: list[RunRecord]) -> Claim:
                     f"{base.mean:.2f} → {attacked.mean:.2f}",
                 )
             )
-            parts[f"{env} baseline"] = (
-                verdicts.reproduced(f"{base}")
-                if base.mean >= BASELINE
-                else baseline_shortfall(runs, clean, base)
-            )
+            reached = judging.above(base, BASELINE, "clean")
+            parts[f"{env} baseline"] = reached or baseline_shortfall(runs, clean, base)
             if env in C7_TARGETS:
                 parts[f"{env} ADMO"] = admo_part(base, attacked, C7_TARGETS[env])
         for run in code_batch_runs(runs, env):
@@ -242,11 +241,13 @@ def c7(runs: list[RunRecord]) -> Claim:
     return Claim(
         "C7",
         CLAIM_TEXT["C7"],
-        f"our setting (the suite's C7 runs): clean Reciprocator mean final success ≥ "
-        f"{BASELINE:g} in every env, and ADMO (disrupt) < 0.1 in ER(4,3), IPD(2,3,4), Stag "
-        "Hunt(2,3,4), < 0.3 in ER(4,2); each setting judged on its own runs (pimbot's "
-        f"defaults; ER also at {CODE_BATCH}); an ER shortfall at the defaults is classified "
-        "by the transfer counterfactual",
+        f"our setting (the suite's C7 runs): the interval of the clean Reciprocator's final "
+        f"success above {BASELINE:g} (the paper's 80–90 %) in every env, and ADMO's (disrupt) "
+        "below 0.3 in ER(4,2) and 0.1 in IPD(2,3,4) (the paper's < 30 %, < 10 %) and in "
+        "ER(4,3) and Stag Hunt(2,3,4) (the paper's 'near 0': 0.1 is ours); an interval that "
+        "includes the bound is inconclusive where its mean is on the paper's side; each "
+        f"setting judged on its own runs (pimbot's defaults; ER also at {CODE_BATCH}); an ER "
+        "shortfall at the defaults is classified by the transfer counterfactual",
         "; ".join((["clean → ADMO: " + "; ".join(lines)] if lines else []) + [_parts_text(parts)]),
         verdicts.combine(parts),
         ", ".join(f"{n} {verdicts.LABELS[k].split(' (')[0]}" for k, n in counts.items() if n)
@@ -259,18 +260,19 @@ CODE_BATCH = "the original code's batch of one episode per update"
 
 
 def admo_part(base, attacked, bound: float) -> verdicts.Verdict:
-    """ADMO (disrupt) success below the published bound where the clean baseline is reached;
-    below it with the baseline not reached, inconclusive (no effect of the attack to see);
-    above it, inconclusive: the original scripts left no log to test against
-    (`judging.disagreement`)."""
-    if attacked.mean < bound and base.mean < BASELINE:
+    """ADMO (disrupt) success below the published bound (`judging.below`: by its interval)
+    where the clean baseline is not short of BASELINE; below it with the baseline short,
+    inconclusive (no effect of the attack to see); above it, inconclusive: the original
+    scripts left no log to test against (`judging.disagreement`)."""
+    judged = judging.below(attacked, bound, "ADMO success")
+    if judged is None:
+        return judging.disagreement(f"ADMO success {attacked} not < {bound:g}; {CODE_LOGS}", None)
+    if judged.kind == verdicts.REPRODUCED and judging.above(base, BASELINE, "clean") is None:
         return verdicts.inconclusive(
             f"ADMO success {attacked} < {bound:g}, but clean {base} does not reach "
             f"{BASELINE:g} either: no effect of the attack to judge"
         )
-    if attacked.mean < bound:
-        return verdicts.reproduced(f"{attacked} < {bound:g}")
-    return judging.disagreement(f"ADMO success {attacked} not < {bound:g}; {CODE_LOGS}", None)
+    return judged
 
 
 def code_batch_runs(runs: list[RunRecord], env: str) -> list[RunRecord]:
@@ -292,13 +294,15 @@ def code_batch_runs(runs: list[RunRecord], env: str) -> list[RunRecord]:
 
 
 def code_batch_part(run: RunRecord) -> verdicts.Verdict:
-    """The baseline at the original code's batch of one: reproduced at ≥ BASELINE; below,
-    inconclusive (pimbot at the code's settings, no original-code log to compare with)."""
+    """The baseline at the original code's batch of one: reproduced where its interval lies
+    above BASELINE (`judging.above`); below, inconclusive (pimbot at the code's settings,
+    no original-code log to compare with)."""
     est = estimate(run.per_seed("eval/success"))
-    at = f"{est} after {run.iterations:,} updates of one episode ({run.setting})"
-    if est.mean >= BASELINE:
-        return verdicts.reproduced(at)
-    return judging.disagreement(f"clean {at}; {CODE_LOGS}", None)
+    at = f"after {run.iterations:,} updates of one episode ({run.setting})"
+    reached = judging.above(est, BASELINE, "clean")
+    if reached is not None:
+        return dataclasses.replace(reached, reason=f"{reached.reason} {at}")
+    return judging.disagreement(f"clean {est} {at}; {CODE_LOGS}", None)
 
 
 def baseline_shortfall(runs, clean, base) -> verdicts.Verdict:
