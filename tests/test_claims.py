@@ -554,6 +554,21 @@ def test_original_code_rows_at_the_common_horizon(tmp_path):
     assert (row.horizon, row.original) == ("10,000 it", None)
 
 
+def write_reverse_run(root, name, finals, source, horizon, period, learner_config=None):
+    """A reverse-attack ER(2,1) run: success 0.7 up to iteration 2 500, then `finals[s]`."""
+    return write_run(
+        root,
+        name,
+        lambda s, t: {"eval/success": finals[s] if t > 2500 else 0.7},
+        attack="reverse",
+        seeds=len(finals),
+        horizon=horizon,
+        period=period,
+        learner_config=learner_config,
+        source=source,
+    )
+
+
 def test_every_log_directory_at_the_runs_settings_is_read(tmp_path):
     """Two original log directories at a run's exact settings that reach the horizon are
     pooled, never one picked by a tie-break: the cause rests on all of them (here the
@@ -561,16 +576,7 @@ def test_every_log_directory_at_the_runs_settings_is_read(tmp_path):
     seeds cannot tell)."""
 
     def reverse_run(name, finals, source=None):
-        return write_run(
-            tmp_path,
-            name,
-            lambda s, t: {"eval/success": finals[s] if t > 2500 else 0.7},
-            attack="reverse",
-            seeds=len(finals),
-            horizon=5000,
-            period=100,
-            source=source,
-        )
+        return write_reverse_run(tmp_path, name, finals, source, horizon=5000, period=100)
 
     ours = reverse_run("attacks/er21_reverse", [0.03, 0.02, 0.01, 0.01, 0.03, 0.04, 0.02, 0.06])
     zeros = reverse_run("original/policy_det", [0.0] * 5, runs.ORIGINAL_CODE)
@@ -602,16 +608,8 @@ def test_a_log_whose_attack_is_inferred_is_shown_but_grounds_no_cause(tmp_path):
     naming it."""
 
     def reverse_run(name, finals, source=None, inferred=False):
-        run = write_run(
-            tmp_path,
-            name,
-            lambda s, t: {"eval/success": finals[s] if t > 2500 else 0.7},
-            attack="reverse",
-            seeds=len(finals),
-            horizon=25_000,
-            period=500,
-            learner_config={"epsilon_decay_iters": 2500},
-            source=source,
+        run = write_reverse_run(
+            tmp_path, name, finals, source, 25_000, 500, {"epsilon_decay_iters": 2500}
         )
         config = {**run.config, "identity": {**run.identity, "eval_episodes": 10}}
         if inferred:
