@@ -233,7 +233,7 @@ def c7(runs: list[RunRecord]) -> Claim:
             reached = judging.above(base, BASELINE, "clean")
             parts[f"{env} baseline"] = reached or baseline_shortfall(runs, clean, base)
             if env in C7_TARGETS:
-                parts[f"{env} ADMO"] = admo_part(base, attacked, C7_TARGETS[env])
+                parts[f"{env} ADMO"] = admo_part(base, reached is None, attacked, C7_TARGETS[env])
         for run in code_batch_runs(runs, env):
             name = f"{env} baseline, {CODE_BATCH}"
             parts[name if name not in parts else f"{name} ({run.setting})"] = code_batch_part(run)
@@ -259,15 +259,16 @@ def c7(runs: list[RunRecord]) -> Claim:
 CODE_BATCH = "the original code's batch of one episode per update"
 
 
-def admo_part(base, attacked, bound: float) -> verdicts.Verdict:
+def admo_part(base, base_short: bool, attacked, bound: float) -> verdicts.Verdict:
     """ADMO (disrupt) success below the published bound (`judging.below`: by its interval)
-    where the clean baseline is not short of BASELINE; below it with the baseline short,
+    where the clean baseline `base` is not short of BASELINE (`base_short`: its
+    `judging.above` found evidence against); below it with the baseline short,
     inconclusive (no effect of the attack to see); above it, inconclusive: the original
     scripts left no log to test against (`judging.disagreement`)."""
     judged = judging.below(attacked, bound, "ADMO success")
     if judged is None:
         return judging.disagreement(f"ADMO success {attacked} not < {bound:g}; {CODE_LOGS}", None)
-    if judged.kind == verdicts.REPRODUCED and judging.above(base, BASELINE, "clean") is None:
+    if judged.kind == verdicts.REPRODUCED and base_short:
         return verdicts.inconclusive(
             f"ADMO success {attacked} < {bound:g}, but clean {base} does not reach "
             f"{BASELINE:g} either: no effect of the attack to judge"
