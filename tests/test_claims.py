@@ -267,6 +267,11 @@ def test_c4_at_the_paper_budget_with_the_later_run_as_a_note(tmp_path):
     short = reverse("er21_short", er(2, 1), const(**{"eval/success": 0.3}), 10_000)
     main = attack_claims.c4(data_of([short, *rest]))
     assert main.judged.kind == verdicts.INCONCLUSIVE and "10,000 it" in main.judged.reason
+    # A run short of the paper's 25k is marked so (the quick budget cannot decide it).
+    parts = dict(main.judged.parts)
+    assert parts["ER(2,1)"].short_horizon == (10_000, 25_000)
+    assert parts["ER(4,2)"].short_horizon is None
+    assert verdicts.by_design(main.judged) and not verdicts.by_design(claim.judged)
     # ER(4,3) solved by our seeds, not by the logs at the same settings: a named difference.
     solved = reverse("er43_solved", er(4, 3), falling(0.3, 1.0))
     logs = reverse("er43_logs", er(4, 3), falling(0.3, 0.0), source=runs.ORIGINAL_CODE)
@@ -369,6 +374,15 @@ def test_c1b_speed_by_a_rank_test_at_equal_horizon(tmp_path):
     assert slower.kind == verdicts.INCONCLUSIVE and "no original-code log" in slower.reason
     few = [run("g", "clean", er(2, 1), 10_000, 3), run("h", "self", er(2, 1), 15_000, 3)]
     assert attack_claims.c1b(data_of(few + fast[2:])).judged.kind == verdicts.INCONCLUSIVE
+    # Runs that stop before the paper's clean run converged (ER(4,2): 14k) are marked so.
+    early = [
+        write_run(tmp_path, f"attacks/{name}", lambda s, t: {"eval/return_ratio": 0.0},
+                  env_params=er(4, 2), attack=attack, horizon=5_000, period=500)
+        for name, attack in (("o", None), ("p", "self_centered"))
+    ]  # fmt: skip
+    short = dict(attack_claims.c1b(data_of([*fast[:2], *early])).judged.parts)
+    assert short["ER(4,2)"].short_horizon == (5_000, 14_000)
+    assert short["ER(2,1)"].short_horizon is None  # 30,000 it reach the paper's 20,000
     # Overlapping seeds cannot be told apart: inconclusive, the logs named beside them.
     mixed = [
         run("i", "clean", er(4, 2), lambda s: 5_000 + 1_000 * s),

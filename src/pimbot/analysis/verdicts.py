@@ -13,10 +13,13 @@ A claim is judged as the paper states it, at the paper's budget, and gets one of
 Every refuted or inconclusive verdict carries a one-line reason written from the
 measured numbers; there is no bare "not reproduced".
 
-`combine` joins the verdicts of a claim's parts; `at_quick_budget` is what the quick
-suite (3 seeds, a fifth of the iterations) may conclude: a refutation that rests on
-learning runs becomes inconclusive there, whatever cause it names; one that follows from
-the environment's rules (`structural`) does not.
+`combine` joins the verdicts of a claim's parts (and keeps them, by name, for the parts
+table); `at_quick_budget` is what the quick suite (3 seeds, a fifth of the iterations) may
+conclude: a refutation that rests on learning runs becomes inconclusive there, whatever
+cause it names; one that follows from the environment's rules (`structural`) does not.
+A part whose rule is stated at an iteration the paper names, which its runs stop short
+of (`stated_at`), is one the quick budget cannot decide by design: where it is
+inconclusive, the quick label says so (`by_design`).
 """
 
 from __future__ import annotations
@@ -67,6 +70,11 @@ class Verdict:
     structural: bool = False
     """Refuted only: it rests on what the env's rules allow, not on how far runs learned,
     so no budget changes it (a run that succeeds where the rules forbid success)."""
+    parts: tuple[tuple[str, Verdict], ...] = dataclasses.field(default=(), compare=False)
+    """(part name, its verdict) of a claim judged in parts (`combine`); () for one part."""
+    short_horizon: tuple[int, int] | None = dataclasses.field(default=None, compare=False)
+    """(the runs' horizon, the paper's) in iterations, where the rule is stated at an
+    iteration the paper names and the runs stop before it (`stated_at`); None otherwise."""
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -94,6 +102,18 @@ class Verdict:
         return f"{self.label}: {self.reason}" if self.reason else self.label
 
 
+def kind_of_label(label: str) -> str:
+    """The kind of a verdict from its label as a claims table writes it ("refuted — cause:
+    our spec", "reproduced (quick budget)")."""
+    bare = label.split(" (")[0].split(" — ")[0]
+    if label.startswith(LABELS[AT_BUDGET]):
+        return AT_BUDGET
+    for kind, text in LABELS.items():
+        if bare == text:
+            return kind
+    raise ValueError(f"not a verdict label: {label!r}")
+
+
 def reproduced(reason: str = "") -> Verdict:
     return Verdict(REPRODUCED, reason)
 
@@ -114,10 +134,25 @@ def not_run(reason: str) -> Verdict:
     return Verdict(NOT_RUN, reason)
 
 
+def stated_at(verdict: Verdict, runs_horizon: int, paper_horizon: int) -> Verdict:
+    """`verdict` of a part whose rule is stated at the paper's `paper_horizon` iterations,
+    marked `short_horizon` where its runs stop at `runs_horizon` < `paper_horizon`; the
+    kind and reason unchanged."""
+    if runs_horizon >= paper_horizon:
+        return verdict
+    return dataclasses.replace(verdict, short_horizon=(runs_horizon, paper_horizon))
+
+
 def combine(parts: dict[str, Verdict]) -> Verdict:
     """One verdict for a claim of several parts (name -> verdict): refuted if any part is
     (every refuted part's cause kept), else inconclusive if any is, else reproduced at the
-    paper's budget if any is, else reproduced. The reason names the deciding parts."""
+    paper's budget if any is, else reproduced. The reason names the deciding parts; the
+    parts are kept (`Verdict.parts`)."""
+    return dataclasses.replace(_joined(parts), parts=tuple(parts.items()))
+
+
+def _joined(parts: dict[str, Verdict]) -> Verdict:
+    """`combine`'s verdict, before the parts are attached."""
     if not parts:
         return inconclusive("no part of the claim could be judged")
     for kind in (NOT_RUN, REFUTED, INCONCLUSIVE, AT_BUDGET):
@@ -132,15 +167,47 @@ def combine(parts: dict[str, Verdict]) -> Verdict:
     return reproduced("; ".join(f"{name}: {v.reason}" for name, v in parts.items() if v.reason))
 
 
+QUICK = "quick budget"
+"""The qualifier of every verdict of the quick suite."""
+BY_DESIGN = "quick budget; by design: a horizon shorter than the paper's"
+"""The qualifier of a quick verdict left inconclusive by a horizon the paper's rule names
+and the quick runs do not reach (`by_design`)."""
+
+
+def by_design(verdict: Verdict) -> bool:
+    """Whether an inconclusive verdict is one its budget cannot decide by design: the part
+    is stated at a horizon its runs do not reach (`short_horizon`), or, for a claim in
+    parts, every inconclusive part is."""
+    if verdict.kind != INCONCLUSIVE:
+        return False
+    if verdict.short_horizon is not None:
+        return True
+    undecided = [v for _, v in verdict.parts if v.kind == INCONCLUSIVE]
+    return bool(undecided) and all(by_design(v) for v in undecided)
+
+
+def horizon_text(verdict: Verdict) -> str:
+    """ "5,000 it, short of the paper's 25,000 it" ("" where the runs reach it)."""
+    if verdict.short_horizon is None:
+        return ""
+    runs, paper = verdict.short_horizon
+    return f"{runs:,} it, short of the paper's {paper:,} it"
+
+
 def at_quick_budget(verdict: Verdict) -> Verdict:
     """What the quick suite may conclude: a refutation that rests on learning runs becomes
     inconclusive (the reason kept), whatever its cause — short runs are no evidence that the
     paper contradicts itself either; a structural one stays; every verdict is marked
-    "quick budget"."""
+    "quick budget", an inconclusive one its budget cannot decide by design (`by_design`)
+    as such. The parts are judged alike."""
+    parts = tuple((name, at_quick_budget(v)) for name, v in verdict.parts)
     if verdict.kind == REFUTED and not verdict.structural:
-        return Verdict(
-            INCONCLUSIVE, f"quick budget; as measured: {verdict.reason}", qualifier="quick budget"
+        verdict = Verdict(
+            INCONCLUSIVE,
+            f"quick budget; as measured: {verdict.reason}",
+            short_horizon=verdict.short_horizon,
         )
     if verdict.kind == NOT_RUN:
-        return verdict
-    return dataclasses.replace(verdict, qualifier="quick budget")
+        return dataclasses.replace(verdict, parts=parts)
+    verdict = dataclasses.replace(verdict, parts=parts)
+    return dataclasses.replace(verdict, qualifier=BY_DESIGN if by_design(verdict) else QUICK)

@@ -263,7 +263,8 @@ def c1b(data: Runs) -> Claim:
         )
         logs = _pooled_logs(data, (clean, selfish), column, horizon)
         numbers += _speed_rows(env, (a, b), column, horizon, paper, logs)
-        parts[env] = _speed_verdict(data, (clean, selfish), column, ours, horizon, paper[0], logs)
+        judged = _speed_verdict(data, (clean, selfish), column, ours, horizon, paper[0], logs)
+        parts[env] = verdicts.stated_at(judged, horizon, paper[0])  # the paper's clean speed
     return Claim(
         "C1b",
         "self-centered: ER converges faster than clean LIO (20k → 12.5k, 14k → 10.5k)",
@@ -677,7 +678,9 @@ def c4(data: Runs) -> Claim:
             at_budget[env] = _missing()
             continue
         measured = reverse(data, env, run)
-        at_budget[env] = measured.at_budget
+        at_budget[env] = verdicts.stated_at(
+            measured.at_budget, run.curves.horizon, PAPER_ATTACK_BUDGET
+        )
         lines.append(measured.line)
         numbers.append(measured.number)
         if measured.late is not None:
