@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Iterable
 
-from pimbot.analysis import verdicts
+from pimbot.analysis import published, verdicts
 from pimbot.analysis.tables import Table
 from pimbot.analysis.verdicts import Verdict
 from pimbot.suites import presets
@@ -74,6 +74,15 @@ class Claim:
 # --- the suite's claims table -----------------------------------------------------------
 
 
+QUICK_SUITE = "quick"
+"""index.json's "suite" of `pimbot reproduce --quick`."""
+
+
+def is_quick(index: dict) -> bool:
+    """Whether the directory holds the paper's suite at the quick budget."""
+    return index.get("suite") == QUICK_SUITE
+
+
 def is_paper_suite(index: dict) -> bool:
     """Whether the directory holds jobs of the paper's suite (they name the claims they
     feed); a `pimbot sweep` grid's jobs feed none and get no claims table."""
@@ -86,7 +95,7 @@ def claim_coverage(index: dict) -> dict[str, tuple[int, int]]:
     planned here, once per report (`presets.suite`)."""
     status = {job["name"]: job["status"] for job in index.get("jobs", [])}
     coverage: dict[str, list[int]] = {c: [0, 0] for c in CLAIM_TEXT}
-    for job in presets.suite(quick=index.get("suite") == "quick"):
+    for job in presets.suite(quick=is_quick(index)):
         for claim in job.claims:
             coverage.setdefault(claim, [0, 0])
             coverage[claim][1] += 1
@@ -104,7 +113,7 @@ def suite_claims(measured: Iterable[Claim], index: dict) -> list[Claim]:
     for claim in measured:
         by_claim.setdefault(claim.suite_claim, []).append(claim)
     coverage = claim_coverage(index)
-    quick = index.get("suite") == "quick"
+    quick = is_quick(index)
     out = []
     for cid, text in CLAIM_TEXT.items():
         done, planned = coverage.get(cid, (0, 0))
@@ -137,11 +146,27 @@ def _not_run(cid: str, text: str, mine: list[Claim], done: int, planned: int) ->
     ]
 
 
-def csv_table(claims: list[Claim]) -> Table:
-    """The claims CSV: every number judged, the verdict's label and its reason."""
+PUBLISHED_COLUMN = "published report"
+"""The column of a quick report that shows the published report's verdict or figure."""
+PUBLISHED_NOTE = (
+    "'published report': the published report's figure of the same quantity, at the "
+    "published budget and its horizon (docs/report, shipped with pimbot as "
+    "pimbot/analysis/published_verdicts.json); '–': it has none."
+)
+
+
+def csv_table(claims: list[Claim], quick: bool = False) -> Table:
+    """The claims CSV: every number judged, the verdict's label and its reason (at the
+    quick budget, the published report's verdict beside them)."""
+    shown = published.shipped()
     return Table(
-        ["claim", "published", "rule", "measured", "verdict", "reason"],
-        [[c.id, c.claim, c.rule, c.measured, c.verdict.label, c.verdict.reason] for c in claims],
+        ["claim", "published", "rule", "measured", "verdict", "reason"]
+        + ([PUBLISHED_COLUMN] if quick else []),
+        [
+            [c.id, c.claim, c.rule, c.measured, c.verdict.label, c.verdict.reason]
+            + ([shown.verdict(c.id)] if quick else [])
+            for c in claims
+        ],
     )
 
 
@@ -154,15 +179,70 @@ COMPARISON_NOTE = (
 )
 
 
-def comparison_table(claims: list[Claim]) -> Table | None:
-    """paper | original code | pimbot, one row per number a claim states; None if none."""
+def comparison_table(claims: list[Claim], quick: bool = False) -> Table | None:
+    """paper | original code | pimbot, one row per number a claim states (at the quick
+    budget, the published report's figure beside it); None if none."""
+    shown = published.shipped()
     rows = [
         [c.id, n.quantity, n.horizon, n.paper, "no log" if n.original is None else n.original]
         + [n.pimbot]
+        + ([shown.figure(c.id, n.quantity)] if quick else [])
         for c in claims
         for n in c.numbers
     ]
     if not rows:
         return None
     header = ["claim", "quantity", "horizon", "paper", "original code", "pimbot"]
-    return Table(header, rows, "Paper | original code | pimbot", COMPARISON_NOTE, "claims_numbers")
+    header += [PUBLISHED_COLUMN] if quick else []
+    note = f"{COMPARISON_NOTE} {PUBLISHED_NOTE}" if quick else COMPARISON_NOTE
+    return Table(header, rows, "Paper | original code | pimbot", note, "claims_numbers")
+
+
+WHOLE_CLAIM = "(the claim as one)"
+"""The part column of a claim row judged in one piece."""
+PARTS_NOTE = (
+    "Every part of each claim row with its own verdict; a claim row's verdict joins them "
+    "(refuted if a part is, else inconclusive if a part is, else reproduced)."
+)
+PARTS_QUICK_NOTE = (
+    " A part whose rule is stated at an iteration the paper names (C1b: the paper's clean "
+    "convergence; C4: its 25,000 it budget), which the quick runs stop short of, says so; "
+    "left inconclusive there, the quick budget cannot decide it by design. 'published "
+    "report': the part's verdict in the published report (docs/report, shipped with "
+    "pimbot as pimbot/analysis/published_verdicts.json)."
+)
+
+
+def claim_parts(claim: Claim) -> tuple[tuple[str, Verdict], ...]:
+    """(part name, verdict) of a claim row: its judged parts, or the row as one part."""
+    return claim.verdict.parts or ((WHOLE_CLAIM, claim.verdict),)
+
+
+def part_reason(verdict: Verdict) -> str:
+    """A part's reason, led by its horizon where the runs stop short of the paper's (unless
+    the reason opens with it)."""
+    if verdict.short_horizon is None:
+        return verdict.reason
+    opening = f"{verdict.short_horizon[0]:,} it < the paper's"  # as the C1b and C4 rules say
+    if verdict.reason.startswith(opening):
+        return verdict.reason
+    return "; ".join(text for text in (verdicts.horizon_text(verdict), verdict.reason) if text)
+
+
+def parts_table(claims: list[Claim], quick: bool = False) -> Table | None:
+    """claim | part | verdict | reason, one row per part of every claim row (at the quick
+    budget, the published report's verdict of the part beside it); None without claims."""
+    if not claims:
+        return None
+    shown = published.shipped()
+    rows = []
+    for claim in claims:
+        for name, verdict in claim_parts(claim):
+            row = [claim.id, name, verdict.label, part_reason(verdict)]
+            if quick:
+                whole = name == WHOLE_CLAIM
+                row.append(shown.verdict(claim.id) if whole else shown.part_verdict(claim.id, name))
+            rows.append(row)
+    header = ["claim", "part", "verdict", "reason"] + ([PUBLISHED_COLUMN] if quick else [])
+    note = PARTS_NOTE + (PARTS_QUICK_NOTE if quick else "")
+    return Table(header, rows, "Claim parts", note, "claims_parts")

@@ -13,7 +13,7 @@ import re
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
-from pimbot.analysis.claims import Claim, comparison_table, is_paper_suite
+from pimbot.analysis.claims import Claim, comparison_table, is_paper_suite, is_quick, parts_table
 from pimbot.analysis.runs import RunRecord, RunTable
 from pimbot.analysis.tables import Table
 from pimbot.training.summary import FINAL_WINDOW
@@ -82,9 +82,20 @@ class Report:
         return "reproduction" if is_paper_suite(self.index) else "sweep"
 
     @property
+    def quick(self) -> bool:
+        """Whether it reports the paper's suite at the quick budget (the published report's
+        verdicts and figures are shown beside its own)."""
+        return is_quick(self.index)
+
+    @property
     def numbers(self) -> Table | None:
         """The claims' paper | original code | pimbot table (None: no claim states one)."""
-        return comparison_table(self.claims)
+        return comparison_table(self.claims, self.quick)
+
+    @property
+    def parts(self) -> Table | None:
+        """Every claim row's parts with their verdicts (None: no claims)."""
+        return parts_table(self.claims, self.quick)
 
 
 # --- counts read from the runs ----------------------------------------------------------

@@ -41,9 +41,8 @@ def render(report: Report, out: Path) -> str:
     parts.append(contents(report))
     parts += section_html(report.provenance, out, anchors, titled)
     if report.claims:
-        parts += [f"<h2 id='{anchors['Claims'].pop(0)}'>Claims</h2>", claims_html(report.claims)]
-        if report.numbers is not None:
-            parts.append(titled(report.numbers))
+        parts += [f"<h2 id='{anchors['Claims'].pop(0)}'>Claims</h2>", claims_html(report)]
+        parts += [titled(t) for t in (layout.shown_parts(report), report.numbers) if t is not None]
     for section in report.sections:
         parts += section_html(section, out, anchors, titled)
     parts.append("</body></html>")
@@ -94,18 +93,27 @@ def verdict_cell(claim: Claim) -> str:
     )
 
 
-def claims_html(claims: list[Claim]) -> str:
-    """The claims table, its verdict legend and every number measured in full."""
-    head = "".join(f"<th>{h}</th>" for h in layout.CLAIMS_HEADER)
+def published_cell(claim: Claim) -> str:
+    """A quick report's cell of the published report's verdict, styled by its kind."""
+    kind, text = layout.published_verdict(claim)
+    return f"<td class='verdict published {kind}'>{html.escape(text)}</td>"
+
+
+def claims_html(report: Report) -> str:
+    """The claims table (a quick report's with the published report's verdicts), its
+    verdict legend and every number measured in full."""
+    claims = report.claims
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in layout.claims_header(report))
     rows = []
     for c in claims:
         measured = html.escape(layout.measured_cell(c))
         if layout.has_details(c):
             measured += f" <a href='#{layout.claim_anchor(c)}'>details</a>"
+        beside = published_cell(c) if report.quick else ""
         rows.append(
             f"<tr><td>{html.escape(c.id)}</td><td>{html.escape(c.claim)}</td>"
             f"<td class='rule'>{html.escape(c.rule)}</td><td class='measured'>{measured}</td>"
-            f"{verdict_cell(c)}</tr>"
+            f"{verdict_cell(c)}{beside}</tr>"
         )
     legend = "".join(
         f"<span class='{kind}'>{MARKERS[kind]} {html.escape(text)}</span>"

@@ -7,17 +7,22 @@ The renderers (analysis.markdown_report, analysis.html_report) differ only in ma
 
 from __future__ import annotations
 
+import dataclasses
 from collections import Counter
 
 from pimbot.analysis import claims as claim_model
-from pimbot.analysis import verdicts
+from pimbot.analysis import published, verdicts
 from pimbot.analysis.claims import Claim
 from pimbot.analysis.document import TABLES, Figure, Report, slug
+from pimbot.analysis.tables import Table
 from pimbot.suites import presets, sweep
 
 VERDICT_LEGEND = verdicts.LEGEND
 """Verdict kind -> its line in the legend under the claims table."""
 CLAIMS_HEADER = ["claim", "published", "rule", "measured", "verdict"]
+"""The claims table's columns ("published": the paper's claim)."""
+PUBLISHED_HEADER = "published report's verdict"
+"""The column a quick report adds: the published report's verdict of the same row."""
 REASON_CHARS = 320
 """A verdict's reason longer than this is cut in the claims table (in full below it)."""
 SKIPPED_LISTED = 12
@@ -108,8 +113,9 @@ def outline(report: Report) -> list[tuple[int, str, str]]:
         entries.append((2, table.title, anchors(table.title)))
     if report.claims:
         entries.append((1, "Claims", anchors("Claims")))
-        if report.numbers is not None:
-            entries.append((2, report.numbers.title, anchors(report.numbers.title)))
+        for table in (report.parts, report.numbers):
+            if table is not None:
+                entries.append((2, table.title, anchors(table.title)))
     for section in report.sections:
         entries.append((1, section.title, anchors(section.title)))
         entries += [(2, figure_title(f), f.anchor) for f in section.figures]
@@ -130,14 +136,32 @@ def headings(report: Report) -> dict[str, list[str]]:
 # --- the claims table's cells -----------------------------------------------------------
 
 
-def reason(claim: Claim) -> str:
-    """The verdict's reason as the claims table shows it ("" for not run), cut at a "; "
-    before REASON_CHARS."""
-    text = claim.verdict.reason if claim.verdict.kind != verdicts.NOT_RUN else ""
+def cut_text(text: str, more: str = "; … (in full below)") -> str:
+    """`text` cut at a "; " before REASON_CHARS, `more` appended where it was cut."""
     if len(text) <= REASON_CHARS:
         return text
     cut = text.rfind("; ", 0, REASON_CHARS)
-    return text[: cut if cut > 0 else REASON_CHARS] + "; … (in full below)"
+    return text[: cut if cut > 0 else REASON_CHARS] + more
+
+
+def reason(claim: Claim) -> str:
+    """The verdict's reason as the claims table shows it ("" for not run), cut at a "; "
+    before REASON_CHARS."""
+    return cut_text(claim.verdict.reason if claim.verdict.kind != verdicts.NOT_RUN else "")
+
+
+PARTS_MORE = "; … (in full in tables/claims_parts.csv)"
+
+
+def shown_parts(report: Report) -> Table | None:
+    """The claim parts table as the report shows it: each reason cut as in the claims
+    table (in full in its CSV)."""
+    table = report.parts
+    if table is None:
+        return None
+    at = table.header.index("reason")
+    rows = [row[:at] + [cut_text(row[at], PARTS_MORE)] + row[at + 1 :] for row in table.rows]
+    return dataclasses.replace(table, rows=rows)
 
 
 def has_details(claim: Claim) -> bool:
@@ -168,3 +192,18 @@ def claim_anchor(claim: Claim) -> str:
 def marked_verdict(verdict: verdicts.Verdict) -> str:
     """The verdict's label with its kind's marker in front: "✘ refuted — cause: …"."""
     return f"{verdict.marker} {verdict.label}"
+
+
+def claims_header(report: Report) -> list[str]:
+    """The claims table's columns; a quick report's with the published report's verdict."""
+    return CLAIMS_HEADER + ([PUBLISHED_HEADER] if report.quick else [])
+
+
+def published_verdict(claim: Claim) -> tuple[str, str]:
+    """(kind, marked label) of the published report's verdict of a claim row; ("", "–")
+    where the published report has no such row."""
+    label = published.shipped().verdict(claim.id)
+    if label is None:
+        return "", "–"
+    kind = verdicts.kind_of_label(label)
+    return kind, f"{verdicts.MARKERS[kind]} {label}"

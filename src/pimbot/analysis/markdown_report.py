@@ -58,13 +58,15 @@ def claims_lines(report: Report, anchor) -> list[str]:
         if layout.reason(c):
             verdict += f" — {layout.reason(c)}"
         rows.append([c.id, c.claim, c.rule, measured, verdict])
-    lines = markdown_lines(Table(layout.CLAIMS_HEADER, rows))
+        if report.quick:
+            rows[-1].append(layout.published_verdict(c)[1])
+    lines = markdown_lines(Table(layout.claims_header(report), rows))
     legend = " · ".join(f"{MARKERS[kind]} {text}" for kind, text in layout.VERDICT_LEGEND.items())
     lines += [f"Verdicts: {legend}", ""]
-    numbers = report.numbers
-    if numbers is not None:
-        lines.append(anchor(numbers.title))
-        lines += markdown_lines(numbers)
+    for table in (layout.shown_parts(report), report.numbers):
+        if table is not None:
+            lines.append(anchor(table.title))
+            lines += markdown_lines(table)
     details = [c for c in report.claims if layout.has_details(c)]
     if details:
         lines += ["Measured, in full:", ""]

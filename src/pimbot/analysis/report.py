@@ -241,9 +241,10 @@ def write_report(suite_dir: Path, out: Path) -> Path:
     report = build(suite_dir, out)
     (out / TABLES).mkdir(exist_ok=True)
     if report.claims:
-        write_csv(claims.csv_table(report.claims), out / TABLES / "claims.csv")
-        if report.numbers is not None:
-            write_csv(report.numbers, out / TABLES / f"{report.numbers.name}.csv")
+        write_csv(claims.csv_table(report.claims, report.quick), out / TABLES / "claims.csv")
+        for table in (report.parts, report.numbers):
+            if table is not None:
+                write_csv(table, out / TABLES / f"{table.name}.csv")
     everything = [report.provenance, *report.sections]
     names = csv_names(everything)
     for section in everything:
