@@ -272,6 +272,46 @@ def test_escape_rooms_differing_only_in_m_share_one_program_and_keep_their_own_m
     assert any(not np.array_equal(a, b) for a, b in zip(shared[2], shared[3], strict=True))
 
 
+def test_reciprocator_balances_and_nl_share_one_program_and_keep_their_own_results():
+    """The Reciprocator's numbers and its balance (`grudge`, traced as its index) are
+    arguments of the program, and `nl` is the same code at weight 0: the petty and the
+    credit − debit balance and NL have one program key and run on one compiled chunk, where
+    each gives bitwise what its own config compiled in gives (passed as None, the program
+    closes over it and takes the balance's Python branch), and the three differ."""
+    import jax
+
+    from pimbot.training.config import resolve
+
+    tiny = (("num_envs", 4), ("policy_hidden", (8,)), ("voi_hidden", (8,)), ("voi_batch", 16))
+    tiny += (("voi_steps", 2), ("ppo_epochs", 2))
+
+    def run(learner: str, grudge: str):
+        hparams = (*tiny, ("grudge", grudge))
+        spec = {**SMALL, "iterations": 4, "eval_period": 2, "eval_episodes": 2, "seeds": 2}
+        return resolve(RunConfig(**{**spec, "learner": learner}, hparams=hparams))
+
+    runs = {
+        "petty": run("reciprocator", "petty"),
+        "accumulated": run("reciprocator", "accumulated"),
+        "nl": run("nl", "petty"),
+    }
+    assert len({programs.program_key(r, 1, 2) for r in runs.values()}) == 1
+    keys = runner.seed_keys(0, 2)
+    shared_fn = runner.make_chunk_fn(runs["petty"], 1)
+    for name, r in runs.items():
+        args = runner.program_args(r)
+        assert jax.tree.leaves(args[4]) != [] and args[4].grudge in (0, 1)
+        shared = jax.tree.leaves(shared_fn(runner.init_states(r, keys), keys, *args))
+        own_fn = runner.make_chunk_fn(r, 1)
+        own = jax.tree.leaves(own_fn(runner.init_states(r, keys), keys, *args[:4], None))
+        for a, b in zip(own, shared, strict=True):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=name)
+        runs[name] = shared
+    assert shared_fn._cache_size() == 1
+    for a, b in (("petty", "accumulated"), ("petty", "nl")):
+        assert any(not np.array_equal(x, y) for x, y in zip(runs[a], runs[b], strict=True))
+
+
 def test_a_program_refuses_a_traced_field_that_is_not_a_number():
     import dataclasses as dc
     from typing import ClassVar

@@ -9,8 +9,11 @@ A learner is registered with `register(LearnerDef(...))`, by pimbot's own (`pimb
 and by a plugin alike (docs/extending.md, "(e) A learner": the worked example
 `examples/plugins/actor_critic.py`). The runner (`pimbot.training.runner`) vmaps `init`
 over seeds, scans `update` for an evaluation period, then calls `evaluate`, all inside one
-compiled program; `cfg` is static (a frozen dataclass), `attack`, `defenses` and `env` are
-pytrees whose numbers are traced.
+compiled program; `attack`, `defenses` and `env` are pytrees whose numbers are traced, and
+so is `cfg` where its class is a `pimbot.envs.core.TracedFields` (`program_config`: the
+fields it names in `traced_fields` are traced, so runs that differ only in those numbers
+share one program; a `program_form()` method may map a choice of formula to a traced
+index); any other config is static (a frozen dataclass the program closes over).
 
 **The state** (one seed's; a `flax.struct.dataclass` of arrays, checkpointed with
 `flax.serialization` and resumed from) holds everything the learner learns (parameters,
@@ -88,6 +91,7 @@ from typing import Any
 from pimbot.contracts import conformance
 from pimbot.contracts.registry import Registry
 from pimbot.contracts.rollout import ActFn, GiveFn
+from pimbot.envs.core import TracedFields, check_traced_numbers
 
 
 @dataclasses.dataclass(frozen=True)
@@ -174,6 +178,19 @@ class LearnerDef:
 
 
 LEARNERS: Registry[LearnerDef] = Registry("learner", "learner")
+
+
+def program_config(cfg: Any) -> Any | None:
+    """What a compiled program takes for the learner config `cfg`: where its class is a
+    `TracedFields`, the config in its program form (`cfg.program_form()` where it has one,
+    else `cfg`), whose `traced_fields` are the program's traced arguments; else None (the
+    program closes over `cfg`, and every field of it is structure)."""
+    if not isinstance(cfg, TracedFields):
+        return None
+    form = getattr(cfg, "program_form", None)
+    cfg = form() if callable(form) else cfg
+    check_traced_numbers(cfg)
+    return cfg
 
 
 def register(definition: LearnerDef, *, replace: bool = False) -> LearnerDef:

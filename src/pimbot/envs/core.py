@@ -87,12 +87,14 @@ class Env(Protocol):
 
 
 class TracedFields:
-    """Base of an env whose numbers are a compiled program's arguments: a pytree whose leaves
+    """Base of an env (or a learner config) whose numbers are a compiled program's
+    arguments: a pytree whose leaves
     are the fields its class names in `traced_fields` and whose static part (the treedef)
     is its class and every other field. This is the data/meta split of
     `jax.tree_util.register_dataclass` and of the attacks' `flax.struct` (numbers are data,
     structure is meta), and gymnax's `EnvParams`: passed into `jax.jit`, the numbers are
     traced and the structure is static, so envs that differ only in them share a program.
+    A learner config does the same (`pimbot.contracts.learner.program_config`).
 
     Unflattening does not call `__init__`: the leaves are then tracers (or the placeholders
     JAX passes while it transforms), and the env's validation (`__post_init__`) ran once,
@@ -145,14 +147,14 @@ def traced_fields(env: Env) -> tuple[str, ...]:
     return tuple(getattr(env, "traced_fields", ()))
 
 
-def _check_traced_numbers(env: Env) -> None:
-    """Refuses by name a traced field that is no bool, int or float (it would trace as some
-    other pytree, or not at all)."""
-    for name in traced_fields(env):
-        value = getattr(env, name, None)
+def check_traced_numbers(obj: Any) -> None:
+    """Refuses by name a traced field of `obj` (an env or a learner config) that is no bool,
+    int or float (it would trace as some other pytree, or not at all)."""
+    for name in traced_fields(obj):
+        value = getattr(obj, name, None)
         if not isinstance(value, (bool, int, float)):
             raise InvalidParameter(
-                f"{type(env).__name__}.traced_fields: {name} must be a bool, int or float "
+                f"{type(obj).__name__}.traced_fields: {name} must be a bool, int or float "
                 f"field, got {value!r}"
             )
 
@@ -163,7 +165,7 @@ def program_env(env: Env) -> Env | None:
     without traced numbers is all structure, and the program closes over it."""
     if not isinstance(env, TracedFields):
         return None
-    _check_traced_numbers(env)
+    check_traced_numbers(env)
     return env
 
 

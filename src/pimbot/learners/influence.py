@@ -186,18 +186,29 @@ balance (the original's `petty_rr`, its Escape Room script's 'linear'), or the o
 agent's one-step grudge."""
 
 
-def next_balance(balance: jax.Array, voi_t: jax.Array, gamma: float, grudge: str) -> jax.Array:
+def grudge_index(grudge: str | int | jax.Array) -> int | jax.Array:
+    """The balance variant as its index in `GRUDGES` (a name is looked up; an index, traced
+    or not, is returned as it is)."""
+    return GRUDGES.index(grudge) if isinstance(grudge, str) else grudge
+
+
+def next_balance(
+    balance: jax.Array, voi_t: jax.Array, gamma: float, grudge: str | int | jax.Array
+) -> jax.Array:
     """B_t [N self, N other] from B_{t−1} and VoI(j→i, t) [N j, N i] (`voi_t.T[i, j]` is the
-    credit VoI(j→i), `voi_t[i, j]` the debit VoI(i→j))."""
-    if grudge == "one_step":
-        return voi_t.T
-    if grudge == "petty":
-        return gamma * balance + voi_t.T
-    return gamma * balance + voi_t.T - voi_t
+    credit VoI(j→i), `voi_t[i, j]` the debit VoI(i→j)). `grudge` is a name of `GRUDGES` or
+    its index, which may be traced: every variant is computed and the index selects one, so
+    the petty and the accumulated balance share one compiled program."""
+    credit = gamma * balance + voi_t.T
+    variants = (credit - voi_t, credit, voi_t.T)  # in the order of GRUDGES
+    index = grudge_index(grudge)
+    if isinstance(index, int):
+        return variants[index]
+    return jax.lax.select_n(index, *variants)
 
 
 def balance_and_reciprocal_reward(
-    voi: jax.Array, gamma: float, grudge: str = "accumulated"
+    voi: jax.Array, gamma: float, grudge: str | int | jax.Array = "accumulated"
 ) -> tuple[jax.Array, jax.Array]:
     """The influence balance per pair and the reciprocal reward, along one episode.
 

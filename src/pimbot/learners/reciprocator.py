@@ -56,17 +56,33 @@ from pimbot.contracts.attack import (
 from pimbot.contracts.defense import NO_DEFENSE, Defenses
 from pimbot.contracts.learner import Actor
 from pimbot.contracts.rollout import Trajectory, discounted_returns, episode_metrics, rollout
-from pimbot.envs.core import Env, InvalidParameter
+from pimbot.envs.core import Env, InvalidParameter, TracedFields
 from pimbot.learners import epoch_schedule, exact_voi, influence, reciprocator_nets, tabular
 from pimbot.learners.pg import act_fn, evaluate_actor
 
 
 @dataclasses.dataclass(frozen=True)
-class ReciprocatorConfig:
+class ReciprocatorConfig(TracedFields):
     """Reciprocator hyperparameters. The base is the general (learned-VoI) agent with the
     original IPD's PPO settings; matrix games declare the original's IPD agent at their
     registration, Escape Room the original Escape Room script's settings, the Stag Hunt
-    gridworld w = 1."""
+    gridworld w = 1.
+
+    The numbers in `traced_fields` and the balance (`grudge`, as its index in `GRUDGES`:
+    `program_form`) are traced arguments of the compiled program, so runs that differ only
+    in them (the petty and the credit − debit balance, `nl`'s weight 0) share one program;
+    sizes, counts and the other choices are its structure."""
+
+    traced_fields: ClassVar[tuple[str, ...]] = (
+        "reciprocal_weight",
+        "lr",
+        "clip",
+        "entropy_coef",
+        "value_coef",
+        "gamma",
+        "voi_lr",
+        "grudge",
+    )
 
     reciprocal_weight: float = 5.0
     """w: weight of the reciprocal reward added to the env reward (0 = naive learner)."""
@@ -139,6 +155,15 @@ class ReciprocatorConfig:
     }
     """Checked ranges (low, high) of the fields; the others are ≥ 0 (`check_fields`)."""
 
+    def program_form(self) -> ReciprocatorConfig:
+        """The config as the compiled program takes it: the balance as its index in
+        `GRUDGES` (`influence.next_balance` selects the formula by it)."""
+        if self.grudge not in GRUDGES:
+            raise InvalidParameter(
+                f"grudge: must be one of {', '.join(GRUDGES)}, got {self.grudge!r}"
+            )
+        return dataclasses.replace(self, grudge=influence.grudge_index(self.grudge))
+
 
 VOI_KINDS = ("learned", "exact")
 GRUDGES = influence.GRUDGES
@@ -158,6 +183,8 @@ def check_config(env: Env, cfg: ReciprocatorConfig) -> None:
     and the sigmoid head unless there are two actions."""
     for name, allowed in CHOICES.items():
         value = getattr(cfg, name)
+        if name in cfg.traced_fields and not isinstance(value, str):
+            continue  # the program form's traced index (`program_form` checked the name)
         if value not in allowed:
             raise InvalidParameter(f"{name}: must be one of {', '.join(allowed)}, got {value!r}")
     if cfg.voi == "exact" or cfg.net_input == "previous_actions":

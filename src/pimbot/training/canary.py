@@ -36,9 +36,8 @@ import numpy as np
 
 from pimbot import attacks, defenses, envs, learners
 from pimbot.contracts import conformance
-from pimbot.envs.core import program_env
 from pimbot.errors import InvalidParameter
-from pimbot.training import canary_probes, programs, runner
+from pimbot.training import canary_probes, runner
 from pimbot.training.config import RunConfig, resolve
 
 
@@ -164,10 +163,10 @@ def paired_run(resolved, build: Build, size: Size, paired: bool = True) -> Outco
     (and counted) once for all of them."""
     init = runner.make_init_fn(resolved)
     chunk = runner.make_chunk_fn(resolved, 1)
-    env, numbers = program_env(resolved.env), programs.optimum_numbers(resolved.env)
+    shared = runner.program_args(resolved)[2:]  # env, its optimum's numbers, learner config
     results, moved = [], False
     for on in (True, False) if paired else (True,):
-        args = (*build(on), env, numbers)
+        args = (*build(on), *shared)
         per_seed = []
         for seed in range(size.seeds):
             keys = runner.seed_keys(seed, 1)

@@ -22,6 +22,11 @@ class and every other field. The program takes the env itself as an argument
 (`envs.core.program_env`), and the reciprocal of its known optimal team return and the
 optimal-rate threshold beside it (`optimum_numbers`), so ER(4, 2) and ER(4, 3) share one
 program. An env that is no `TracedFields` has no traced numbers: the program closes over it.
+
+Learner configs follow it too (`contracts.learner.program_config`): a config whose class is
+a `TracedFields` enters as an argument, its `traced_fields` traced, so runs that differ only
+in those hyperparameters (the Reciprocator's balance and weight, for example: `nl` is its
+weight 0) share one program. The learner enters by its code (`learner_code`), not its name.
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ import numpy as np
 from pimbot.attacks import strategy_union
 from pimbot.attacks.strategy_union import structure
 from pimbot.contracts.attack import Attack
+from pimbot.contracts.learner import program_config
 from pimbot.envs.core import program_env
 from pimbot.training.config import ResolvedRun
 
@@ -62,6 +68,27 @@ def _env_structure(env: Any) -> tuple:
     return closed_over, structure(argument), structure(optimum_numbers(env))
 
 
+def learner_code(learner: Any) -> tuple[str, ...]:
+    """The code a learner's program runs: its config class and its four functions, by
+    module and name. Two registered learners that share them (the Reciprocator and `nl`, its
+    weight-0 variant) compile one program; their names are no part of it."""
+    parts = (learner.config_cls, learner.init, learner.update, learner.evaluate, learner.acting)
+    names = tuple(
+        f"{getattr(part, '__module__', '?')}.{getattr(part, '__qualname__', repr(part))}"
+        for part in parts
+    )
+    if any("<" in name or "?" in name for name in names):  # a lambda, a local, a partial:
+        names += (learner.name,)  # its name may not tell it apart, so the learner's does
+    return names
+
+
+def _config_structure(cfg: Any) -> tuple:
+    """What of a learner config the program is compiled for: the structure of the config it
+    takes as an argument (`program_config`), or all of a config it closes over (its repr)."""
+    argument = program_config(cfg)
+    return (repr(cfg),) if argument is None else structure(argument)
+
+
 def _closed_over(resolved: ResolvedRun, periods: int, seeds: int, devices: int) -> tuple:
     """What the chunk closes over, besides the attack, the defenses and the env's traced
     numbers (their structure is part of the key)."""
@@ -69,8 +96,8 @@ def _closed_over(resolved: ResolvedRun, periods: int, seeds: int, devices: int) 
         type(resolved.env).__module__,
         type(resolved.env).__qualname__,
         _env_structure(resolved.env),
-        resolved.run.learner,
-        repr(resolved.learner_config),
+        learner_code(resolved.learner),
+        _config_structure(resolved.learner_config),
         resolved.eval_period,
         resolved.eval_episodes,
         periods,

@@ -42,6 +42,7 @@ from pimbot import plugins
 from pimbot.attacks import strategy_union
 from pimbot.contracts import preflight
 from pimbot.contracts.attack import STATE_METRICS, state_metric_prefix, state_metrics
+from pimbot.contracts.learner import program_config
 from pimbot.envs.core import InvalidParameter, program_env
 from pimbot.training import programs, store, tracking
 from pimbot.training.config import ResolvedRun, RunConfig, env_parameters, resolve
@@ -141,21 +142,23 @@ def reduce_eval(
 def make_chunk_fn(resolved: ResolvedRun, num_periods: int):
     """A jitted function running `num_periods` evaluation periods for every seed.
 
-    The attack, the defenses, the env (`envs.core.program_env`) and its optimum's numbers
-    (`programs.optimum_numbers`) are arguments, not constants: pytrees whose numeric
-    leaves are traced and whose structure is static, so runs that differ only in numbers
-    share the program. (An env without traced numbers is passed as None and closed over.)
+    The attack, the defenses, the env (`envs.core.program_env`), its optimum's numbers
+    (`programs.optimum_numbers`) and the learner config (`contracts.learner.program_config`)
+    are arguments, not constants: pytrees whose numeric leaves are traced and whose
+    structure is static, so runs that differ only in numbers share the program. (An env
+    or a config without traced numbers is passed as None and closed over.)
 
     Each evaluation row holds the evaluation's means ("eval"), the period's mean training
     metrics ("train") and the attack's metrics of its state ("attack", `state_metrics`).
 
-    Returns fn(states [S], eval_roots [S], attack, defenses, env, optimum numbers) ->
-    (states, metrics with leaves [S, num_periods, ...]).
+    Returns fn(states [S], eval_roots [S], attack, defenses, env, optimum numbers, config)
+    -> (states, metrics with leaves [S, num_periods, ...]).
     """
-    learner, cfg = resolved.learner, resolved.learner_config
+    learner = resolved.learner
 
-    def one_seed(state, eval_root, attack, defenses, env, numbers):
+    def one_seed(state, eval_root, attack, defenses, env, numbers, cfg):
         env = resolved.env if env is None else env
+        cfg = resolved.learner_config if cfg is None else cfg
 
         def period(state, _):
             state, train = jax.lax.scan(
@@ -179,28 +182,36 @@ def make_chunk_fn(resolved: ResolvedRun, num_periods: int):
         return jax.lax.scan(period, state, None, length=num_periods)
 
     # the states are donated: a chunk updates them in place (the caller keeps only the result)
-    return jax.jit(jax.vmap(one_seed, in_axes=(0, 0, None, None, None, None)), donate_argnums=0)
+    shared = (0, 0, None, None, None, None, None)
+    return jax.jit(jax.vmap(one_seed, in_axes=shared), donate_argnums=0)
 
 
 def make_init_fn(resolved: ResolvedRun):
-    """A jitted fn(init_keys [S], attack, defenses, env, optimum numbers) -> every seed's
-    initial state [S, ...] (the arguments of `make_chunk_fn`)."""
-    learner, cfg = resolved.learner, resolved.learner_config
+    """A jitted fn(init_keys [S], attack, defenses, env, optimum numbers, config) -> every
+    seed's initial state [S, ...] (the arguments of `make_chunk_fn`)."""
+    learner = resolved.learner
 
-    def init(key, attack, defenses, env, numbers):
+    def init(key, attack, defenses, env, numbers, cfg):
         del numbers  # the chunk's (one argument list for both)
         env = resolved.env if env is None else env
+        cfg = resolved.learner_config if cfg is None else cfg
         return learner.init(key, env, cfg, attack, defenses)
 
-    return jax.jit(jax.vmap(init, in_axes=(0, None, None, None, None)))
+    return jax.jit(jax.vmap(init, in_axes=(0, None, None, None, None, None)))
 
 
 def program_args(resolved: ResolvedRun) -> tuple:
     """What a run passes its compiled init and chunk besides keys and states: (attack,
-    defenses, env, optimum numbers), pytrees whose numbers are the programs' traced
-    arguments."""
+    defenses, env, optimum numbers, learner config), pytrees whose numbers are the programs'
+    traced arguments."""
     env = resolved.env
-    return resolved.attack, resolved.defenses, program_env(env), programs.optimum_numbers(env)
+    return (
+        resolved.attack,
+        resolved.defenses,
+        program_env(env),
+        programs.optimum_numbers(env),
+        program_config(resolved.learner_config),
+    )
 
 
 def init_states(resolved: ResolvedRun, init_keys: jax.Array):
