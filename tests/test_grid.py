@@ -217,3 +217,18 @@ def test_unreadable_grid_files_are_one_line(tmp_path, capsys):
         assert cli.main(["sweep", str(tmp_path / name), "--out", str(tmp_path / "o")]) == 2
         err = capsys.readouterr().err
         assert expected in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_the_quick_suite_runs_the_fewest_seeds_at_which_its_tests_can_decide():
+    """Every quick job runs `QUICK_SEEDS` seeds: with all of them agreeing, a one-sided
+    sign-flip test reaches p < 0.05 there and not with one seed fewer, and the report's
+    intervals are BCa CIs from there on."""
+    import numpy as np
+
+    from pimbot.statistics import MIN_SEEDS_FOR_CI, sign_p_value
+
+    quick = presets.QUICK_SEEDS
+    assert sign_p_value(np.ones(quick)) < 0.05 <= sign_p_value(np.ones(quick - 1))
+    assert quick >= MIN_SEEDS_FOR_CI
+    trained = [j for j in presets.suite(quick=True) if j.kind == "train"]
+    assert {j.spec.seeds for j in trained} == {quick}

@@ -6,9 +6,10 @@ directory the job writes under and the report section that reads it.
 
 `suite(quick=False)` is the published budget (10 seeds, the paper's
 iterations); `suite(quick=True)` keeps every setting, figure and claim but
-runs 3 seeds on a fifth of the iterations, so the whole pipeline finishes in
-minutes on a laptop. Claims judged on the quick budget are marked as such by
-the report: most learning claims need the full budget.
+runs `QUICK_SEEDS` (5) seeds on a fifth of the iterations, so the whole pipeline
+finishes in minutes on a laptop. Claims judged on the quick budget are marked as
+such by the report, and those whose rule is stated at a horizon the quick budget
+does not reach are named undecidable there by design.
 """
 
 from __future__ import annotations
@@ -42,9 +43,21 @@ class Scale:
     """False: the defense matrix and the robot evaluation keep a representative slice."""
 
 
+QUICK_SEEDS = 5
+"""Seeds of every quick job: the fewest at which the report's tests can decide. A one-sided
+sign-flip test's smallest p-value is 2^−n (5 seeds: 0.031 < 0.05; 3 seeds: 0.125), a
+permutation test of two runs' means 1 / C(2n, n) (5 + 5 seeds: 0.004; 3 + 3: 0.05), and
+from 5 seeds an interval is a BCa bootstrap CI rather than the range
+(`statistics.MIN_SEEDS_FOR_CI`)."""
 FULL = Scale("full", 10, 1.0, min_evals=10, profile_seconds=20.0, robot_episodes=10)
 QUICK = Scale(
-    "quick", 3, 0.2, min_evals=10, profile_seconds=3.0, robot_episodes=1, full_matrices=False
+    "quick",
+    QUICK_SEEDS,
+    0.2,
+    min_evals=10,
+    profile_seconds=3.0,
+    robot_episodes=1,
+    full_matrices=False,
 )
 QUICK_DEFENSE_SLICE = ("er21", ("clean", "fake_incentive", "bypass"), ("guard", "all"))
 """(setting, attacks, defense sets) the quick suite keeps of the defense matrix."""
