@@ -102,3 +102,27 @@ def test_workers_receive_canonical_paths(plugin_file, monkeypatch):
     monkeypatch.chdir(plugin_file.parent)
     monkeypatch.setenv(plugins.ENV_VAR, "")
     assert plugins.load_plugins([plugin_file.name]) == (str(plugin_file.resolve()),)
+
+
+def test_loading_a_plugin_moves_the_compilation_cache_to_its_key(tmp_path, monkeypatch):
+    from pimbot import jax_setup
+
+    monkeypatch.setenv(jax_setup.CACHE_ENV, str(tmp_path / "cache"))
+    try:
+        before = jax_setup.enable_compilation_cache()
+        first, second = tmp_path / "v1", tmp_path / "v2"
+        for version, folder in enumerate((first, second)):
+            folder.mkdir()
+            (folder / "cache_key_plugin.py").write_text(f"VERSION = {version}\n")
+        plugins.load(str(first / "cache_key_plugin.py"))
+        moved = jax_setup.active_cache_dir()
+        assert moved != before and moved.parent == tmp_path / "cache"
+        assert moved == jax_setup.cache_dir(tmp_path / "cache")  # the files loaded now
+        digests = jax_setup.loaded_plugin_digests()
+        ours = plugins.file_sha256(first / "cache_key_plugin.py")
+        other = plugins.file_sha256(second / "cache_key_plugin.py")
+        changed = [other if d == ours else d for d in digests]  # the same file, edited
+        assert jax_setup.cache_dir(tmp_path / "cache", changed) != moved
+    finally:
+        monkeypatch.undo()
+        jax_setup.enable_compilation_cache()  # back to the session's cache

@@ -15,7 +15,8 @@ sweep worker that loads the same list gets the same module. `load_plugins`
 returns that list (paths made absolute) for the workers.
 
 What was loaded is recorded with every run (`provenance`: each plugin's file and sha256 in
-config.json "plugins"), and a run reloaded from its directory (`pimbot train --from`)
+config.json "plugins"; the same digests key the compilation cache's directory,
+`jax_setup.cache_dir`), and a run reloaded from its directory (`pimbot train --from`)
 names a recorded plugin that this process has not loaded (`missing`).
 
 A plugin that fails is one line naming its file and line: one that cannot be imported
@@ -132,7 +133,16 @@ def load(module: str) -> ModuleType:
         path = key if is_path(key) else _module_file(key)
         raise PluginError(f"plugin: cannot import {module}: {_reason(error, path)}") from error
     _LOADED[key] = loaded
+    _loaded_new()
     return loaded
+
+
+def _loaded_new() -> None:
+    """After a new plugin: a compilation cache this process enabled moves to the directory
+    of the plugin files loaded now (`jax_setup.refresh_compilation_cache`)."""
+    from pimbot import jax_setup
+
+    jax_setup.refresh_compilation_cache()
 
 
 def _module_file(name: str) -> str | None:
@@ -157,6 +167,7 @@ def load_plugins(extra: Iterable[str] = (), *, from_env: bool = True) -> tuple[s
     Raises:
         PluginError: the first plugin that cannot be imported, in one line.
     """
+    before = len(_LOADED)
     for entry in _entry_points():
         key = f"entry point {entry.name} ({entry.value})"
         if key in _LOADED:
@@ -167,6 +178,8 @@ def load_plugins(extra: Iterable[str] = (), *, from_env: bool = True) -> tuple[s
             raise PluginError(
                 f"plugin: cannot import {entry.value} (entry point {entry.name}): {_reason(error)}"
             ) from None
+    if len(_LOADED) != before:
+        _loaded_new()
     names = (from_environment() if from_env else []) + list(extra)
     resolved: list[str] = []
     for module in names:
