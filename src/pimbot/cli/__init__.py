@@ -196,6 +196,10 @@ def run(argv: list[str]) -> int:
         jax_setup.use_all_cpu_cores()  # before --from, a plugin or the command imports jax
     parsed = parse_options(path, cls, args)
     loaded = plugins.load_plugins(parsed.command.plugin)  # the one load of this invocation
+    if cls.compiles:  # keyed by the plugins just loaded; before a check compiles anything
+        from pimbot import jax_setup
+
+        jax_setup.enable_compilation_cache()
     if plugins.loaded():  # a plugin is checked for what it does before any work
         from pimbot import learners  # noqa: F401 (the built-ins a plugin's defaults name)
         from pimbot.contracts import preflight

@@ -97,6 +97,10 @@ class Command:
     all_cpu_cores: ClassVar[bool] = False
     """Whether the command shards seeds over one XLA device per CPU core (set before JAX
     is imported: `jax_setup.use_all_cpu_cores`)."""
+    compiles: ClassVar[bool] = False
+    """Whether the command compiles programs: its process enables the persistent
+    compilation cache once the plugins (its key) are loaded, before anything compiles
+    (`jax_setup.enable_compilation_cache`)."""
 
     def run(self, plugins: tuple[str, ...]) -> int:
         """Does the command (plugins loaded, names checked); the exit status.
@@ -206,6 +210,7 @@ class Train(Logging, Command):
     """No progress display."""
 
     all_cpu_cores: ClassVar[bool] = True
+    compiles: ClassVar[bool] = True
 
     def int_bounds(self) -> dict[str, int]:
         return {
@@ -286,6 +291,8 @@ class Profile(Command):
     """Cut long zero-GPU stretches in the figure."""
     out: Annotated[str, tyro.conf.arg(metavar="DIR")]
     """Run directory (created)."""
+
+    compiles: ClassVar[bool] = True
 
     def int_bounds(self) -> dict[str, int]:
         return {"action_repeat": 1, "seed": 0}
@@ -397,6 +404,8 @@ class Check(Command):
     """Seeds of each canary run (≥ 1)."""
     iterations: int = 20
     """Training iterations of each canary run (≥ 1)."""
+
+    compiles: ClassVar[bool] = True
 
     def int_bounds(self) -> dict[str, int]:
         return {"seeds": 1, "iterations": 1}

@@ -6,7 +6,6 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from pimbot import jax_setup
 from pimbot.cli import defenses as defense_cli
 from pimbot.cli.parsing import UsageError
 
@@ -114,7 +113,6 @@ def cmd_train(args) -> int:
     from pimbot.training import memory, runner, store
     from pimbot.training.config import resolve
 
-    jax_setup.enable_compilation_cache()
     if args.out is None:
         raise UsageError("--out: required: the run directory (or --from RUN_DIR to rerun one)")
     if args.attack_param and args.attack is None:
@@ -200,7 +198,6 @@ def cmd_profile(args) -> int:
     from pimbot.profiling import CONTROLLERS, ProfileConfig, profile, samplers
     from pimbot.training.config import parse_env_params
 
-    jax_setup.enable_compilation_cache()
     check_writable("out", Path(args.out), directory=True)
     config = ProfileConfig(
         env_id=args.env,

@@ -18,6 +18,7 @@ attacks and defenses on either backend.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import fcntl
 import fnmatch
@@ -129,8 +130,11 @@ def _jax_backends_started() -> bool:
     return bool(xla_bridge.backends_are_initialized())
 
 
-def _configure_worker(devices: int) -> None:
-    """Process setup before XLA starts: host devices and the compilation cache."""
+def _configure_worker(devices: int, plugins: tuple[str, ...] = ()) -> None:
+    """Process setup, in this order: the host devices (before XLA starts), the plugins,
+    then the compilation cache (its directory is keyed by the plugin files). A local
+    worker does it once, when it starts (`_local_worker_init`); each task repeats it, a
+    no-op by then (a Ray task, a fresh process, does it there)."""
     if not _jax_backends_started():
         kept = os.environ.get("XLA_FLAGS", "").split()
         flags = " ".join(f for f in kept if "xla_force_host_platform_device_count" not in f)
@@ -139,6 +143,7 @@ def _configure_worker(devices: int) -> None:
         os.environ["XLA_FLAGS"] = flags.strip()
         # Several workers may share one GPU: allocate on demand instead of 75 % each.
         os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+    plugin_loader.load_plugins(plugins, from_env=False)  # once per process
     from pimbot import jax_setup
 
     jax_setup.enable_compilation_cache()
@@ -155,8 +160,7 @@ def execute_job(
     """Runs (or resumes, or confirms finished) one job; returns its status record.
     `shared`: what the jobs of its group share (see `Kind.execute`)."""
     options = options or JobOptions()
-    _configure_worker(devices)
-    plugin_loader.load_plugins(plugins, from_env=False)  # once per process
+    _configure_worker(devices, plugins)
     path = job_dir(Path(suite_dir), job)
     path.parent.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -212,10 +216,9 @@ def execute_group(
     "programs": the programs compiled (`PROGRAM_COUNTS`)}; one failed job does not stop
     the others."""
     options = options or JobOptions()
-    _configure_worker(devices)
+    _configure_worker(devices, plugins)
     _watch_compiles()
     before = dict(_COMPILES)
-    plugin_loader.load_plugins(plugins, from_env=False)  # once per process
     shared = cache = None
     if KINDS[jobs[0].kind].compiles_a_training_program:
         from pimbot.suites.jobs import train_strategies
@@ -285,13 +288,20 @@ def _exit_with_parent(parent: int) -> None:
     threading.Thread(target=watch, daemon=True).start()
 
 
-def _local_worker_init(parent: int, devices: int) -> None:
+def _local_worker_init(parent: int, devices: int, plugins: tuple[str, ...] = ()) -> None:
+    """A local worker's start: it exits with the sweep, imports JAX and loads the plugins
+    and the compilation cache once, for every task it will run."""
     _exit_with_parent(parent)
-    _configure_worker(devices)
+    # An error here would break the pool, failing every task unnamed: each task retries
+    # the set-up and reports the error as its own.
+    with contextlib.suppress(Exception):
+        _configure_worker(devices, plugins)
 
 
 class LocalBackend:
-    """A process pool on this machine (fresh `spawn`ed processes, so jax starts clean)."""
+    """A process pool on this machine (fresh `spawn`ed processes, so jax starts clean),
+    each worker kept for the whole sweep: JAX is imported, the plugins loaded and the
+    cache enabled once per worker (`_local_worker_init`), not once per task."""
 
     def __init__(self, workers: int, devices: int, options: SweepOptions):
         import multiprocessing
@@ -300,7 +310,7 @@ class LocalBackend:
             max_workers=workers,
             mp_context=multiprocessing.get_context("spawn"),
             initializer=_local_worker_init,
-            initargs=(os.getpid(), devices),
+            initargs=(os.getpid(), devices, options.plugins),
         )
         self.devices, self.options = devices, options
 
