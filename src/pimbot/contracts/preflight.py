@@ -10,7 +10,11 @@
   plugin's, one iteration of it (init, update, evaluate) is traced abstractly
   (`jax.eval_shape`: shapes only, nothing compiled or computed), so every hook's output
   check and every exception in the plugin's code is met before training starts, as one
-  line at the plugin's file and line.
+  line at the plugin's file and line. A run whose structure this code (pimbot's sources,
+  the plugin files loaded and each plugin part's own file) traced without error before
+  is not traced again: the pass is recorded in the compilation cache's directory
+  (`jax_setup.marker`). A change to a helper module a plugin imports (no plugin itself,
+  not one of its parts' files) is not seen by it; the program's own trace still is.
 
 Each failure is a `conformance.ContractError` (an `InvalidParameter`): one line, exit 2.
 """
@@ -24,6 +28,7 @@ from typing import Any
 
 import jax
 
+from pimbot import jax_setup, plugins
 from pimbot.contracts import conformance
 from pimbot.contracts.attack import state_metrics
 from pimbot.contracts.conformance import ContractError, PluginCodeError
@@ -154,6 +159,10 @@ def check_run(learner, env, config, attack, defenses, eval_episodes: int) -> Non
     key = _trace_key(learner, env, config, attack, defenses, eval_episodes)
     if not plugin_parts or key in _TRACED:
         return
+    passed = _passed_marker(key, [part for _, part in plugin_parts])
+    if passed is not None and passed.exists():  # this code traced this structure before
+        _TRACED.add(key)
+        return
 
     def one_iteration(key):
         state = learner.init(key, env, config, attack, defenses)
@@ -173,6 +182,46 @@ def check_run(learner, env, config, attack, defenses, eval_episodes: int) -> Non
         raise PluginCodeError(conformance.code_error(error, files, where, fallback)) from error
     if key is not None:
         _TRACED.add(key)
+    _mark_passed(passed)
+
+
+def _passed_marker(key: Any, parts: list[Any]):
+    """The file that records that this code traced a run of `key`'s structure without
+    error, so a later process skips the trace (`jax_setup.marker`: in the compilation
+    cache's directory, keyed by pimbot's sources and the plugin files loaded). Its name
+    covers the key and each plugin part's class or function and the sha256 of its file.
+    None where something could differ unseen: a key printed with an address, a part
+    defined inside a function (it may close over values) or without a readable file; or
+    where no cache is active."""
+    if key is None:
+        return None
+    learner, env, config, *rest = key
+    texts = [repr((learner, _typed(env), _typed(config), *rest))]
+    for part in parts:
+        qualname = getattr(part, "__qualname__", "<locals>")
+        file = conformance.source_file(part)
+        digest = plugins.file_sha256(file) if file else None
+        if "<locals>" in qualname or digest is None:
+            return None
+        texts.append(f"{part.__module__}.{qualname} {digest}")
+    if " at 0x" in texts[0]:
+        return None
+    return jax_setup.marker("preflight", "\n".join(texts))
+
+
+def _typed(value: Any) -> tuple[str, Any]:
+    """`value` with its class's module and name (two classes may print alike)."""
+    return f"{type(value).__module__}.{type(value).__qualname__}", value
+
+
+def _mark_passed(path) -> None:
+    if path is None:
+        return
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.touch()
+    except OSError:  # a read-only cache: the next process traces again
+        pass
 
 
 _TRACED: set = set()
