@@ -312,6 +312,34 @@ def test_reciprocator_balances_and_nl_share_one_program_and_keep_their_own_resul
         assert any(not np.array_equal(x, y) for x, y in zip(runs[a], runs[b], strict=True))
 
 
+@pytest.mark.parametrize(
+    ("learner", "field", "values"),
+    [("lio", "lr_incentive", (1e-3, 3e-3)), ("pg", "gamma", (0.99, 0.9))],
+)
+def test_runs_differing_only_in_a_traced_hyperparameter_share_one_program(learner, field, values):
+    """LIO's and PG's rates, loss weights and γ are traced: two values, one program key and
+    one compiled chunk, each value giving bitwise what it gives compiled in, and the two
+    differing."""
+    import jax
+
+    from pimbot.training.config import resolve
+
+    spec = {**SMALL, "iterations": 20, "eval_period": 10, "seeds": 2, "learner": learner}
+    runs = [resolve(RunConfig(**spec, hparams=((field, v),))) for v in values]
+    assert programs.program_key(runs[0], 1, 2) == programs.program_key(runs[1], 1, 2)
+    keys = runner.seed_keys(0, 2)
+    shared_fn, shared = runner.make_chunk_fn(runs[0], 1), []
+    for r in runs:
+        args = runner.program_args(r)
+        shared.append(jax.tree.leaves(shared_fn(runner.init_states(r, keys), keys, *args)))
+        own_fn = runner.make_chunk_fn(r, 1)
+        own = own_fn(runner.init_states(r, keys), keys, *args[:4], None)
+        for a, b in zip(jax.tree.leaves(own), shared[-1], strict=True):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert shared_fn._cache_size() == 1
+    assert any(not np.array_equal(a, b) for a, b in zip(*shared, strict=True))
+
+
 def test_a_program_refuses_a_traced_field_that_is_not_a_number():
     import dataclasses as dc
     from typing import ClassVar

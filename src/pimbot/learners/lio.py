@@ -50,7 +50,7 @@ from pimbot.contracts.rollout import (
     received,
     rollout,
 )
-from pimbot.envs.core import Env, InvalidParameter
+from pimbot.envs.core import Env, InvalidParameter, TracedFields
 from pimbot.learners.pg import act_fn, epsilon_at, evaluate_actor, policy_step, reinforce_loss
 
 INCENTIVE_UPDATES = ("shared", "own")
@@ -58,9 +58,19 @@ INCENTIVE_UPDATES = ("shared", "own")
 
 
 @dataclasses.dataclass(frozen=True)
-class LIOConfig:
+class LIOConfig(TracedFields):
     """LIO hyperparameters (defaults: the original Escape Room column; other games declare
-    the IPD column at their registration)."""
+    the IPD column at their registration). The numbers in `traced_fields` are traced
+    arguments of the compiled program (runs that differ only in them share it); the ε
+    schedule and the cost's rate stay structure (computed on the host, or branched on)."""
+
+    traced_fields: ClassVar[tuple[str, ...]] = (
+        "lr_policy",
+        "lr_incentive",
+        "incentive_max",
+        "entropy_coef",
+        "gamma",
+    )
 
     policy_hidden: tuple[int, ...] = (64, 32)
     """Hidden layer widths of the policy MLP."""

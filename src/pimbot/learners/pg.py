@@ -32,13 +32,17 @@ from pimbot.contracts.attack import (
 from pimbot.contracts.defense import NO_DEFENSE, Defenses, EpsilonContext
 from pimbot.contracts.learner import Actor
 from pimbot.contracts.rollout import Trajectory, discounted_returns, episode_metrics, rollout
-from pimbot.envs.core import Env
+from pimbot.envs.core import Env, TracedFields
 
 
 @dataclasses.dataclass(frozen=True)
-class PGConfig:
+class PGConfig(TracedFields):
     """Hyperparameters of the policy-gradient baseline (defaults: the original ER column;
-    other games declare the IPD column at their registration)."""
+    other games declare the IPD column at their registration). The numbers in
+    `traced_fields` are traced arguments of the compiled program; the ε schedule stays
+    structure."""
+
+    traced_fields: ClassVar[tuple[str, ...]] = ("lr_policy", "entropy_coef", "gamma")
 
     policy_hidden: tuple[int, ...] = (64, 32)
     """Hidden layer widths of the policy MLP."""
