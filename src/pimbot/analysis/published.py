@@ -135,7 +135,7 @@ def named_in(reason: str, part: str) -> bool:
     return reason.startswith(f"{part}: ") or f"; {part}: " in reason
 
 
-NOT_REFUTED = "not refuted (the published row names its refuted parts only)"
+NOT_REFUTED = "not refuted (reproduced or inconclusive)"
 
 
 def derived_part_verdict(row: dict[str, str], part: str) -> str:
