@@ -65,7 +65,12 @@ learners.register(
 @pytest.fixture(autouse=True)
 def registries_as_they_were():
     """The plugins these tests load register in this process; the next test file in the
-    same worker sees the registries as they were (its "allowed: ..." lists)."""
+    same worker sees the registries as they were (its "allowed: ..." lists). The built-ins
+    are registered first: saved before their first import, the registries would be
+    restored empty, with the built-in modules already imported (never registering again)."""
+    import pimbot.attacks  # noqa: F401
+    import pimbot.defenses  # noqa: F401
+    import pimbot.learners  # noqa: F401
     from pimbot import plugins
     from pimbot.contracts.attack import ATTACKS
     from pimbot.contracts.defense import DEFENSES

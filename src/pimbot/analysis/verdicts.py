@@ -14,7 +14,7 @@ Every refuted or inconclusive verdict carries a one-line reason written from the
 measured numbers; there is no bare "not reproduced".
 
 `combine` joins the verdicts of a claim's parts (and keeps them, by name, for the parts
-table); `at_quick_budget` is what the quick suite (3 seeds, a fifth of the iterations) may
+table); `at_quick_budget` is what the quick suite (5 seeds, a fifth of the iterations) may
 conclude: a refutation that rests on learning runs becomes inconclusive there, whatever
 cause it names; one that follows from the environment's rules (`structural`) does not.
 A part whose rule is stated at an iteration the paper names, which its runs stop short
