@@ -351,3 +351,29 @@ def test_quick_suite_keeps_every_setting_of_the_full_suite():
         assert q.spec.iterations // (q.spec.eval_period or 1000) >= 10
         same = ("env_id", "env_params", "learner", "hparams", "attack", "attack_params", "defenses")
         assert all(getattr(f.spec, k) == getattr(q.spec, k) for k in same)
+
+
+def test_nl_shares_the_reciprocators_programs_but_not_its_strategies_program():
+    """`nl` is the Reciprocator's code at weight 0 (its config's numbers traced): its clean
+    Escape Room runs share the Reciprocator's program; its clean IPD run stays out of the
+    Reciprocator's clean + self-centered `Strategies` program, where the act hook would
+    play its games through the rollout instead of the tabular sampler (its results
+    would change), and runs on its own."""
+    from pimbot.suites import presets
+    from pimbot.suites.jobs import JobOptions
+    from pimbot.suites.sweep import groups
+
+    jobs = [j for j in presets.suite(quick=True) if j.kind == "train"]
+    task_of = {
+        j.name: tuple(sorted(x.name for x in task))
+        for task in groups(jobs, JobOptions(), 1)
+        for j in task
+    }
+    room = task_of["reciprocators/rec_er21_clean"]
+    assert "reciprocators/nl_er21_clean" in room
+    assert "reciprocators/rec_er21_spec_clean" in room  # the credit − debit balance too
+    assert task_of["reciprocators/nl_ipd2_clean"] == ("reciprocators/nl_ipd2_clean",)
+    assert task_of["reciprocators/rec_ipd2_clean"] == (
+        "reciprocators/rec_ipd2_clean",
+        "reciprocators/rec_ipd2_self_centered",
+    )

@@ -62,10 +62,12 @@ class LIOConfig(TracedFields):
     """LIO hyperparameters (defaults: the original Escape Room column; other games declare
     the IPD column at their registration). The numbers in `traced_fields` are traced
     arguments of the compiled program (runs that differ only in them share it); the ε
-    schedule and the cost's rate stay structure (computed on the host, or branched on)."""
+    schedule and the cost's rate stay structure (computed on the host, or branched on),
+    and so does `lr_policy`: traced, it moved ADMO's 2-agent runs (ER(2,1), IPD) in the
+    last bits from the first evaluation on (XLA folds it with other constants when it
+    is one), and chaotic training makes that a different run."""
 
     traced_fields: ClassVar[tuple[str, ...]] = (
-        "lr_policy",
         "lr_incentive",
         "incentive_max",
         "entropy_coef",

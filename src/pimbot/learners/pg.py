@@ -39,10 +39,10 @@ from pimbot.envs.core import Env, TracedFields
 class PGConfig(TracedFields):
     """Hyperparameters of the policy-gradient baseline (defaults: the original ER column;
     other games declare the IPD column at their registration). The numbers in
-    `traced_fields` are traced arguments of the compiled program; the ε schedule stays
-    structure."""
+    `traced_fields` are traced arguments of the compiled program; the ε schedule and
+    `lr_policy` stay structure (as LIO's, whose policy step this is)."""
 
-    traced_fields: ClassVar[tuple[str, ...]] = ("lr_policy", "entropy_coef", "gamma")
+    traced_fields: ClassVar[tuple[str, ...]] = ("entropy_coef", "gamma")
 
     policy_hidden: tuple[int, ...] = (64, 32)
     """Hidden layer widths of the policy MLP."""

@@ -152,6 +152,25 @@ def train_strategies(specs: list) -> dict[str, Any] | None:
     return templates if len(templates) > 1 else None
 
 
+def train_partition(jobs: list) -> list[list]:
+    """The tasks a group of training jobs (one `programs.share_key`) runs as: one, unless
+    the group mixes strategy attack kinds (one `strategy_union.Strategies` program) and
+    learner entries; then one task per entry, so a run joins a `Strategies` program only
+    with runs of its own learner entry. A run on a `Strategies` program takes its
+    learner's path for an attack that acts at `act` (the Reciprocator then plays matrix
+    games through the rollout instead of its tabular sampler: the same distribution,
+    another random stream), so `nl`'s clean IPD run, folded into the Reciprocator's
+    clean and self-centered one, would change its results."""
+    from pimbot.training.config import resolve
+
+    if len(jobs) < 2 or train_strategies([j.spec for j in jobs]) is None:
+        return [jobs]
+    by_learner: dict[str, list] = {}
+    for job in jobs:
+        by_learner.setdefault(resolve(job.spec).run.learner, []).append(job)
+    return list(by_learner.values())
+
+
 def train_progress(path: Path, spec) -> float:
     meta = path / store.CHECKPOINT_DIR / store.STATE_META
     try:
@@ -240,6 +259,8 @@ class Kind:
     share: Callable[[Any, JobOptions, int], str | None] = lambda spec, options, devices: None
     """The program a job runs on: jobs of one kind with one (non-None) key form a group,
     run as one task that compiles it once; None: alone."""
+    partition: Callable[[list], list[list]] = lambda jobs: [jobs]
+    """The tasks a group (jobs with one `share` key, in job order) runs as."""
     compiles_a_training_program: bool = False
     """Its jobs train (spec: a RunConfig): a group shares one `runner.ProgramCache`, whose
     compiles the suite counts, and its strategy attacks (`train_strategies`)."""
@@ -253,6 +274,7 @@ KINDS = {
         train_cost,
         train_describe,
         train_share,
+        train_partition,
         compiles_a_training_program=True,
     ),
     "profile": Kind(

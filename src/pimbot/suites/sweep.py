@@ -241,8 +241,8 @@ def execute_group(
 
 def groups(jobs: list[Job], options: JobOptions, devices: int) -> list[tuple[Job, ...]]:
     """The jobs as tasks, in job order: jobs of one kind with one `Kind.share` key (one
-    compiled program) form a group, every other job is alone; a job that needs another
-    job of its group leaves it."""
+    compiled program) form a group, which its `Kind.partition` may split, every other job
+    is alone; a job that needs another job of its group leaves it."""
     by_key: dict[tuple[str, str], list[Job]] = {}
     tasks: list[list[Job]] = []
     for job in jobs:
@@ -254,6 +254,7 @@ def groups(jobs: list[Job], options: JobOptions, devices: int) -> list[tuple[Job
         else:
             by_key[job.kind, key] = [job]
             tasks.append(by_key[job.kind, key])
+    tasks = [part for task in tasks for part in KINDS[task[0].kind].partition(task)]
     result: list[tuple[Job, ...]] = []
     for task in tasks:
         names = {j.name for j in task}

@@ -118,7 +118,9 @@ def program_key(resolved: ResolvedRun, periods: int, seeds: int, devices: int = 
 
 
 def share_key(resolved: ResolvedRun, periods: int, seeds: int, devices: int = 1) -> str:
-    """`program_key` after folding the strategy attacks: the planner's grouping key."""
+    """`program_key` after folding the strategy attacks: the planner's grouping key (a
+    group that mixes strategy kinds across learner entries is then split by entry:
+    `pimbot.suites.jobs.train_partition`)."""
     attack = resolved.attack
     attack_part = (
         ("strategies", attack.adversary)
