@@ -15,9 +15,12 @@ summary.json it writes (`wall_s_this_session`: from the start of training, with
 
 "cold" runs with an empty compilation cache ($PIMBOT_CACHE_DIR pointed at a new folder),
 "warm" runs the same command again on the cache the cold run filled (the median of
-`--repeats`). `pimbot check` is timed the same way, cold and warm. One sitting, so the rows
-compare; the machine's load average is printed before and after: on a shared machine
-the absolute times are upper bounds and the cold/warm ratios are what count.
+`--repeats`). `pimbot check` is timed the same way, cold and warm. "compiled" counts the
+programs XLA compiled in the process rather than loaded from the persistent cache (from
+JAX's compile log, `JAX_LOG_COMPILES=1`): 0 for a warm command that compiles nothing.
+One sitting, so the rows compare; the machine's load average is printed before and
+after: on a shared machine the absolute times are upper bounds and the cold/warm ratios
+are what count.
 """
 
 from __future__ import annotations
@@ -38,17 +41,21 @@ ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_PLUGIN = ROOT / "examples" / "plugins" / "actor_critic.py"
 
 
-def timed(argv: list[str], env: dict[str, str]) -> tuple[float, float]:
-    """(wall seconds, CPU seconds) of one `pimbot` process; fails loudly on an error."""
+def timed(argv: list[str], env: dict[str, str]) -> tuple[float, float, int]:
+    """(wall seconds, CPU seconds, programs compiled rather than loaded from the cache) of
+    one `pimbot` process; fails loudly on an error."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
+    env = {**env, "JAX_LOG_COMPILES": "1"}
     done = subprocess.run(argv, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if done.returncode != 0:
         sys.exit(f"{' '.join(argv)} failed ({done.returncode}):\n{done.stderr[-2000:]}")
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-    return wall, cpu
+    finished = done.stderr.count("Finished XLA compilation of ")  # cache hits too
+    loaded = done.stderr.count("Persistent compilation cache hit for ")
+    return wall, cpu, finished - loaded
 
 
 def pimbot(*args: str) -> list[str]:
@@ -72,7 +79,7 @@ def train_once(args, out: Path, env: dict[str, str]) -> dict[str, float]:
         str(out),
         "--quiet",
     )
-    wall, cpu = timed(argv, env)
+    wall, cpu, compiled = timed(argv, env)
     summary = json.loads((out / "summary.json").read_text())
     session, compile_s = summary["wall_s_this_session"], summary["compile_s"]
     startup = wall - session
@@ -83,26 +90,35 @@ def train_once(args, out: Path, env: dict[str, str]) -> dict[str, float]:
         "compile": compile_s,
         "first it.": startup + compile_s,
         "training": session - compile_s,
+        "compiled": compiled,
     }
 
 
 def check_once(args, env: dict[str, str]) -> dict[str, float]:
-    wall, cpu = timed(pimbot("check", str(args.plugin)), env)
-    return {"wall": wall, "cpu": cpu}
+    wall, cpu, compiled = timed(pimbot("check", str(args.plugin)), env)
+    return {"wall": wall, "cpu": cpu, "compiled": compiled}
 
 
 def median_of(runs: list[dict[str, float]]) -> dict[str, float]:
     return {key: statistics.median(run[key] for run in runs) for key in runs[0]}
 
 
-COLUMNS = ("first it.", "start-up", "compile", "training", "wall", "cpu")
+COLUMNS = ("first it.", "start-up", "compile", "training", "wall", "cpu", "compiled")
+
+
+def _cell(row: dict[str, float], column: str) -> str:
+    if column not in row:
+        return f"{'-':>11}"
+    if column == "compiled":
+        return f"{row[column]:>11.0f}"
+    return f"{row[column]:>10.2f}s"
 
 
 def table(rows: list[tuple[str, dict[str, float]]]) -> str:
     head = f"{'':<22}" + "".join(f"{c:>11}" for c in COLUMNS)
     lines = [head]
     for name, row in rows:
-        cells = "".join(f"{row[c]:>10.2f}s" if c in row else f"{'-':>11}" for c in COLUMNS)
+        cells = "".join(_cell(row, c) for c in COLUMNS)
         lines.append(f"{name:<22}{cells}")
     return "\n".join(lines)
 

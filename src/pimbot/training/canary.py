@@ -36,6 +36,7 @@ element of a vmap where the hook's output is mapped, none in a branch not taken.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from collections.abc import Callable
 from pathlib import Path
@@ -245,16 +246,35 @@ def paired_run(
         per_seed = []
         for seed in range(size.seeds):
             keys = runner.seed_keys(seed, 1)
-            states, counts = init(jax.vmap(lambda k: jax.random.fold_in(k, 0))(keys), *args)
+            with _uncountable(resolved):
+                states, counts = init(jax.vmap(lambda k: jax.random.fold_in(k, 0))(keys), *args)
             tally.add(counts, on)
             before = jax.device_get(states)  # the chunk takes (donates) the states
             eval_roots = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
-            states, metrics, counts = chunk(states, eval_roots, *args)  # eval_period: all
+            with _uncountable(resolved):
+                states, metrics, counts = chunk(states, eval_roots, *args)  # eval_period: all
             tally.add(counts, on)
             per_seed.append(jax.device_get(metrics))
             moved = moved or (on and _params_moved(before, jax.device_get(states)))
         results.append(jax.tree.map(lambda *x: np.concatenate(x), *per_seed))
     return Outcome(results[0], results[-1], moved)
+
+
+@contextlib.contextmanager
+def _uncountable(resolved):
+    """JAX refuses a counter's update inside a `lax.cond` under a vmap (the seeds' or the
+    learner's own): one line naming the limit instead of JAX's error."""
+    try:
+        yield
+    except NotImplementedError as error:
+        if "vmap-of-cond" not in str(error):
+            raise
+        raise InvalidParameter(
+            f"check: learner {resolved.run.learner} calls a hook inside a lax.cond under a "
+            "vmap (its own or the seeds'), where pimbot check cannot count it (JAX supports "
+            "no state effect in a vmap of a cond); an attack or defense can be checked with "
+            "another learner (--learner)"
+        ) from error
 
 
 def _params_moved(before, after) -> bool:
