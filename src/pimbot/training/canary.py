@@ -22,21 +22,10 @@ whose parameters did not move, non-finite metrics. As Gymnasium's `env_checker` 
 PettingZoo's `parallel_api_test` call an env and check what comes back, this calls a
 plugin's hooks inside the program that trains (docs/extending.md, "Checking what a plugin
 does: pimbot check").
-
-The counts are outputs of the programs, not host callbacks: the init and the chunk of a
-paired run (`counted_programs`) each carry a counter array, which the counted hooks add
-to where the program executes them (`canary_probes.Tally.counting`), and return it with
-their results. JAX never writes a program with a host callback (`jax.debug.callback`)
-to the persistent compilation cache, so counting through callbacks made every `pimbot
-check` compile its programs again; with the counts as outputs both programs are cached,
-and a second check of the same file compiles nothing (benchmarks/warm_start.py). The
-counts are the same as a callback's: once per execution, per step of a `scan`, per
-element of a vmap where the hook's output is mapped, none in a branch not taken.
 """
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 from collections.abc import Callable
 from pathlib import Path
@@ -47,7 +36,6 @@ import numpy as np
 
 from pimbot import attacks, defenses, envs, learners
 from pimbot.contracts import conformance
-from pimbot.contracts.attack import state_metrics
 from pimbot.errors import InvalidParameter
 from pimbot.training import canary_probes, runner
 from pimbot.training.config import RunConfig, resolve
@@ -160,121 +148,37 @@ class Outcome:
         return float(np.mean(metrics["eval"]["success"]))
 
 
-Build = Callable[[], tuple[Any, tuple]]
-"""() -> (attack, defenses) of a paired run, their hooks counted (`canary_probes.instrument`,
-answering with their own outputs; `canary_probes.switched` gives the no-op half)."""
+Build = Callable[[bool], tuple[Any, tuple]]
+"""flag -> (attack, defenses) of one half of a paired run."""
 
 
-def counted_programs(resolved, tally: canary_probes.Tally):
-    """(init, chunk) of `resolved` for `paired_run`, jitted: the runner's init and a chunk
-    of one evaluation period (`runner.make_init_fn`, `runner.make_chunk_fn`, the same
-    computation), each traced inside `tally.counting` and returning the counter of the
-    counted hooks it executed besides its results: init(init_keys, *args) -> (states,
-    counts); chunk(states, eval_roots, *args) -> (states, metrics, counts), with args
-    `runner.program_args`' (attack, defenses, env, optimum numbers, learner config).
-
-    The counts are outputs of the program, not host callbacks, so the persistent
-    compilation cache keeps both programs: a second `pimbot check` compiles nothing."""
-    learner = resolved.learner
-
-    def init(key, attack, defenses, env, numbers, cfg):
-        del numbers  # the chunk's (one argument list for both)
-        env = resolved.env if env is None else env
-        cfg = resolved.learner_config if cfg is None else cfg
-        return learner.init(key, env, cfg, attack, defenses)
-
-    def one_seed(state, eval_root, attack, defenses, env, numbers, cfg):
-        env = resolved.env if env is None else env
-        cfg = resolved.learner_config if cfg is None else cfg
-
-        def period(state, _):
-            state, train = jax.lax.scan(
-                lambda s, _: learner.update(s, env, cfg, attack, defenses),
-                state,
-                None,
-                length=resolved.eval_period,
-            )
-            eval_key = jax.random.fold_in(eval_root, state.iteration)
-            per_episode = learner.evaluate(
-                eval_key, state, env, cfg, resolved.eval_episodes, attack
-            )
-            row = {
-                "iteration": state.iteration,
-                "eval": runner.reduce_eval(env, per_episode, attack.adversary, numbers),
-                "train": jax.tree.map(lambda x: x.mean(axis=0), train),
-                "attack": state_metrics(attack, state, env.num_agents),
-            }
-            return state, row
-
-        return jax.lax.scan(period, state, None, length=1)
-
-    def counted_init(keys, *args):
-        with tally.counting() as counts:
-            states = jax.vmap(init, in_axes=(0, None, None, None, None, None))(keys, *args)
-            return states, counts()
-
-    def counted_chunk(states, eval_roots, *args):
-        with tally.counting() as counts:
-            shared = (0, 0, None, None, None, None, None)
-            states, metrics = jax.vmap(one_seed, in_axes=shared)(states, eval_roots, *args)
-            return states, metrics, counts()
-
-    # the states are donated, as the runner's chunk: updated in place
-    return jax.jit(counted_init), jax.jit(counted_chunk, donate_argnums=0)
-
-
-def paired_run(
-    resolved, build: Build, size: Size, tally: canary_probes.Tally, paired: bool = True
-) -> Outcome:
+def paired_run(resolved, build: Build, size: Size, paired: bool = True) -> Outcome:
     """Trains `resolved`'s learner `size.iterations` iterations on `size.seeds` seeds twice
-    from the same keys: with `build()`'s attack and defenses answering with their hooks'
-    own outputs, then with the no-op's (one compiled program: they differ only in a traced
-    flag); once, with their own, unless `paired` (the second half's metrics are then the
-    first's). The counts of the hooks each half executed go to `tally` under its flag.
-    Writes nothing.
+    from the same keys: with `build(True)`'s attack and defenses, then `build(False)`'s
+    (one compiled program: they differ only in numbers); once, with `build(True)`'s, unless
+    `paired` (the second half's metrics are then the first's). Writes nothing.
 
     The seeds run one after another through a program compiled for one seed: under a
     vmap over seeds, a hook whose inputs are the same for every seed would be executed
     (and counted) once for all of them."""
-    init, chunk = counted_programs(resolved, tally)
+    init = runner.make_init_fn(resolved)
+    chunk = runner.make_chunk_fn(resolved, 1)
     shared = runner.program_args(resolved)[2:]  # env, its optimum's numbers, learner config
-    attack, defenses = build()
     results, moved = [], False
     for on in (True, False) if paired else (True,):
-        switched = tuple(canary_probes.switched(d, on) for d in defenses)
-        args = (canary_probes.switched(attack, on), switched, *shared)
+        args = (*build(on), *shared)
         per_seed = []
         for seed in range(size.seeds):
             keys = runner.seed_keys(seed, 1)
-            with _uncountable(resolved):
-                states, counts = init(jax.vmap(lambda k: jax.random.fold_in(k, 0))(keys), *args)
-            tally.add(counts, on)
+            states = init(jax.vmap(lambda k: jax.random.fold_in(k, 0))(keys), *args)
             before = jax.device_get(states)  # the chunk takes (donates) the states
             eval_roots = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
-            with _uncountable(resolved):
-                states, metrics, counts = chunk(states, eval_roots, *args)  # eval_period: all
-            tally.add(counts, on)
+            states, metrics = chunk(states, eval_roots, *args)
             per_seed.append(jax.device_get(metrics))
             moved = moved or (on and _params_moved(before, jax.device_get(states)))
         results.append(jax.tree.map(lambda *x: np.concatenate(x), *per_seed))
+    jax.effects_barrier()  # every hook's callback has run
     return Outcome(results[0], results[-1], moved)
-
-
-@contextlib.contextmanager
-def _uncountable(resolved):
-    """JAX refuses a counter's update inside a `lax.cond` under a vmap (the seeds' or the
-    learner's own): one line naming the limit instead of JAX's error."""
-    try:
-        yield
-    except NotImplementedError as error:
-        if "vmap-of-cond" not in str(error):
-            raise
-        raise InvalidParameter(
-            f"check: learner {resolved.run.learner} calls a hook inside a lax.cond under a "
-            "vmap (its own or the seeds'), where pimbot check cannot count it (JAX supports "
-            "no state effect in a vmap of a cond); an attack or defense can be checked with "
-            "another learner (--learner)"
-        ) from error
 
 
 def _params_moved(before, after) -> bool:
@@ -341,11 +245,11 @@ def check_attack(name: str, env_id: str, order: list[str], size: Size, tally) ->
     hooks = _own_hooks(resolved.attack, resolved.learner.attack_hooks)
     setting = _setting(resolved, "no defense")
 
-    def build():
-        counted = canary_probes.instrument(resolved.attack, hooks, tally, f"{part} {setting}", True)
+    def build(on: bool):
+        counted = canary_probes.instrument(resolved.attack, hooks, tally, f"{part} {setting}", on)
         return counted, resolved.defenses
 
-    outcome = paired_run(resolved, build, size, tally)
+    outcome = paired_run(resolved, build, size)
     rows = _hook_rows(part, setting, hooks, tally, outcome)
     return Result(rows, _hook_problems(part, rows))
 
@@ -366,11 +270,11 @@ def check_defense(name: str, env_id: str, order, options: Options, tally) -> Res
         hooks = _own_hooks(defense, resolved.learner.defense_hooks)
         setting = _setting(resolved, f"under attack {attack}" if attack else "clean")
 
-        def build(resolved=resolved, defense=defense, hooks=hooks, label=setting):
-            counted = canary_probes.instrument(defense, hooks, tally, f"{part} {label}", True)
+        def build(on: bool, resolved=resolved, defense=defense, hooks=hooks, label=setting):
+            counted = canary_probes.instrument(defense, hooks, tally, f"{part} {label}", on)
             return resolved.attack, (counted,)
 
-        outcome = paired_run(resolved, build, options.size, tally)
+        outcome = paired_run(resolved, build, options.size)
         rows += _hook_rows(part, setting, hooks, tally, outcome)
     return Result(tuple(rows), tuple(problems) + _hook_problems(part, rows))
 
@@ -418,14 +322,14 @@ def check_learner(name: str, env_id: str, size: Size, tally) -> Result:
     definition = resolved.learner
     attack_hooks, defense_hooks = definition.attack_hooks, definition.defense_hooks
 
-    def build():
+    def build(on: bool):
         attack = canary_probes.probe_attack(attack_hooks)
         defense = canary_probes.probe_defense(defense_hooks)
-        counted_attack = canary_probes.instrument(attack, attack_hooks, tally, part, True)
-        counted_defense = canary_probes.instrument(defense, defense_hooks, tally, part, True)
+        counted_attack = canary_probes.instrument(attack, attack_hooks, tally, part, on)
+        counted_defense = canary_probes.instrument(defense, defense_hooks, tally, part, on)
         return counted_attack, (counted_defense,) if defense_hooks else ()
 
-    outcome = paired_run(resolved, build, size, tally, paired=False)
+    outcome = paired_run(resolved, build, size, paired=False)
     setting = _setting(resolved, "probes doing nothing")
     rows = [Row(part, setting, "(trains)", note=_trained_note(outcome))]
     for hook in (*attack_hooks, *defense_hooks):
@@ -444,9 +348,7 @@ def check_env(env_id: str, order: list[str], size: Size) -> Result:
     resolved, why = first_run(env_id, order, size)
     if resolved is None:
         return Result((), (f"{part}: no learner can run on it: {why}",))
-    tally = canary_probes.Tally()  # nothing counted: an env's run has no probes
-    build = lambda: (resolved.attack, resolved.defenses)  # noqa: E731
-    outcome = paired_run(resolved, build, size, tally, paired=False)
+    outcome = paired_run(resolved, lambda on: (resolved.attack, resolved.defenses), size, False)
     row = Row(part, _setting(resolved, "clean"), "(trains)", note=_trained_note(outcome))
     return Result((row,), _training_problems(part, outcome))
 
