@@ -346,7 +346,7 @@ class Reproduce(Suite):
     """Run the paper's whole experiment suite into one directory (resumable)."""
 
     quick: bool = False
-    """3 seeds and a fifth of the iterations: every setting and figure, in minutes."""
+    """5 seeds and a fifth of the iterations: every setting and figure, in minutes."""
 
     def run(self, plugins: tuple[str, ...]) -> int:
         from pimbot.cli import handlers
