@@ -15,11 +15,11 @@ column is missing on one side, or the rows differ in number.
 from __future__ import annotations
 
 import argparse
+import csv
 import sys
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 EXACT = ("iteration", "seed", "success", "exit_success", "optimal_rate", "count", "steps")
 """Columns whose names contain one of these must be identical (counts and successes)."""
@@ -32,20 +32,27 @@ def run_dirs(root: Path) -> dict[str, Path]:
     return {str(p.parent.relative_to(root)): p.parent for p in sorted(root.rglob("metrics.csv"))}
 
 
+def read_columns(path: Path) -> tuple[dict[str, np.ndarray], int]:
+    """metrics.csv as column -> float values (an empty cell is NaN), and its row count."""
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    names = list(rows[0]) if rows else []
+    columns = {n: np.array([float(r[n]) if r[n] else np.nan for r in rows]) for n in names}
+    return columns, len(rows)
+
+
 def compare_run(before: Path, after: Path, tolerance: float) -> tuple[list[str], float]:
     """(problems, largest relative difference) of one run's metrics.csv."""
-    a = pd.read_csv(before / "metrics.csv")
-    b = pd.read_csv(after / "metrics.csv")
-    columns = [c for c in a.columns if not c.startswith("perf/")]
-    problems = [f"column {c} missing after" for c in columns if c not in b.columns]
-    problems += [
-        f"column {c} new after" for c in b.columns if c not in a.columns and "perf/" not in c
-    ]
-    if len(a) != len(b):
-        return [*problems, f"{len(a)} rows before, {len(b)} after"], float("inf")
+    a, a_rows = read_columns(before / "metrics.csv")
+    b, b_rows = read_columns(after / "metrics.csv")
+    columns = [c for c in a if not c.startswith("perf/")]
+    problems = [f"column {c} missing after" for c in columns if c not in b]
+    problems += [f"column {c} new after" for c in b if c not in a and "perf/" not in c]
+    if a_rows != b_rows:
+        return [*problems, f"{a_rows} rows before, {b_rows} after"], float("inf")
     largest = 0.0
-    for column in (c for c in columns if c in b.columns):
-        x, y = a[column].to_numpy(float), b[column].to_numpy(float)
+    for column in (c for c in columns if c in b):
+        x, y = a[column], b[column]
         same = (x == y) | (np.isnan(x) & np.isnan(y))
         if same.all():
             continue
