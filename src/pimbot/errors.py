@@ -7,11 +7,18 @@ and exit code 2.
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from typing import Any
 
 
 class InvalidParameter(ValueError):
     """A bad environment (or other) parameter; the message names the field and what is allowed."""
+
+
+def check_choice(name: str, value: Any, allowed: Collection[str]) -> None:
+    """Raises InvalidParameter unless `value` is one of `allowed` (the message lists them)."""
+    if value not in allowed:
+        raise InvalidParameter(f"{name}: must be one of {', '.join(allowed)}, got {value!r}")
 
 
 def check_int(name: str, value: Any, low: int, high: int | None = None) -> None:

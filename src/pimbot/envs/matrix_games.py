@@ -26,7 +26,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from pimbot.envs.core import InvalidParameter, check_int
+from pimbot.envs.core import check_int
+from pimbot.errors import check_choice
 
 COOPERATE, DEFECT = 0, 1
 STAG, HARE = 0, 1
@@ -93,8 +94,7 @@ class MatrixGame:
     terminates_on_success: bool = dataclasses.field(default=False, init=False)
 
     def __post_init__(self) -> None:
-        if self.game not in PAYOFFS:
-            raise InvalidParameter(f"game: must be one of {', '.join(PAYOFFS)}, got {self.game!r}")
+        check_choice("game", self.game, PAYOFFS)
         check_int("n_players", self.n_players, 2)
         check_int("max_steps", self.max_steps, 1)
 

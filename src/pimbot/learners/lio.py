@@ -50,7 +50,8 @@ from pimbot.contracts.rollout import (
     received,
     rollout,
 )
-from pimbot.envs.core import Env, InvalidParameter, TracedFields
+from pimbot.envs.core import Env, TracedFields
+from pimbot.errors import check_choice
 from pimbot.learners.pg import act_fn, epsilon_at, evaluate_actor, policy_step, reinforce_loss
 
 INCENTIVE_UPDATES = ("shared", "own")
@@ -113,11 +114,7 @@ class LIOConfig(TracedFields):
     """Checked ranges (low, high) of the fields; the others are ≥ 0 (`check_fields`)."""
 
     def __post_init__(self):
-        if self.incentive_updates not in INCENTIVE_UPDATES:
-            raise InvalidParameter(
-                f"incentive_updates: must be one of {', '.join(INCENTIVE_UPDATES)}, "
-                f"got {self.incentive_updates!r}"
-            )
+        check_choice("incentive_updates", self.incentive_updates, INCENTIVE_UPDATES)
 
 
 @struct.dataclass

@@ -57,6 +57,7 @@ from pimbot.contracts.defense import NO_DEFENSE, Defenses
 from pimbot.contracts.learner import Actor
 from pimbot.contracts.rollout import Trajectory, discounted_returns, episode_metrics, rollout
 from pimbot.envs.core import Env, InvalidParameter, TracedFields
+from pimbot.errors import check_choice
 from pimbot.learners import epoch_schedule, exact_voi, influence, reciprocator_nets, tabular
 from pimbot.learners.pg import act_fn, evaluate_actor
 
@@ -158,10 +159,7 @@ class ReciprocatorConfig(TracedFields):
     def program_form(self) -> ReciprocatorConfig:
         """The config as the compiled program takes it: the balance as its index in
         `GRUDGES` (`influence.next_balance` selects the formula by it)."""
-        if self.grudge not in GRUDGES:
-            raise InvalidParameter(
-                f"grudge: must be one of {', '.join(GRUDGES)}, got {self.grudge!r}"
-            )
+        check_choice("grudge", self.grudge, GRUDGES)
         return dataclasses.replace(self, grudge=influence.grudge_index(self.grudge))
 
 
@@ -185,8 +183,7 @@ def check_config(env: Env, cfg: ReciprocatorConfig) -> None:
         value = getattr(cfg, name)
         if name in cfg.traced_fields and not isinstance(value, str):
             continue  # the program form's traced index (`program_form` checked the name)
-        if value not in allowed:
-            raise InvalidParameter(f"{name}: must be one of {', '.join(allowed)}, got {value!r}")
+        check_choice(name, value, allowed)
     if cfg.voi == "exact" or cfg.net_input == "previous_actions":
         exact_voi.check_env(env)
     if cfg.policy_head == "sigmoid" and env.num_actions != 2:

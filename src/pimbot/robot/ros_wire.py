@@ -149,12 +149,9 @@ ROS_TYPES: dict[str, type[IdlStruct]] = {
 
 
 def check_distro(distro: str) -> str:
-    if distro not in ROS_DISTROS:
-        from pimbot.errors import InvalidParameter
+    from pimbot.errors import check_choice
 
-        raise InvalidParameter(
-            f"ros_distro: must be one of {', '.join(ROS_DISTROS)}, got {distro!r}"
-        )
+    check_choice("ros_distro", distro, ROS_DISTROS)
     return distro
 
 

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from pimbot.atomic_files import staged_directory
+from pimbot.errors import check_choice
 from pimbot.robot.messages import Odometry, Twist, cmd_vel_topic, odom_topic
 
 if TYPE_CHECKING:  # importing this module imports neither mujoco nor numpy (CLI start-up)
@@ -53,15 +54,8 @@ def typestore(distro: str):
     """rosbags' typestore with `distro`'s message definitions."""
     from rosbags.typesys import Stores, get_typestore
 
-    _check_choice("ros_distro", distro, ROS_DISTROS)
+    check_choice("ros_distro", distro, ROS_DISTROS)
     return get_typestore({"humble": Stores.ROS2_HUMBLE, "jazzy": Stores.ROS2_JAZZY}[distro])
-
-
-def _check_choice(name: str, value: str, allowed: tuple[str, ...]) -> None:
-    from pimbot.errors import InvalidParameter
-
-    if value not in allowed:
-        raise InvalidParameter(f"{name}: must be one of {', '.join(allowed)}, got {value!r}")
 
 
 def _header(types, stamp_ns: int, frame_id: str):
@@ -161,8 +155,8 @@ def write_bag(
     """
     from pimbot.errors import InvalidParameter
 
-    _check_choice("bag_storage", storage, BAG_STORAGES)
-    _check_choice("ros_distro", distro, ROS_DISTROS)
+    check_choice("bag_storage", storage, BAG_STORAGES)
+    check_choice("ros_distro", distro, ROS_DISTROS)
     if not result.bus.log:
         raise InvalidParameter("rosbag: the episode was not recorded (run it with record=True)")
     out = Path(out)

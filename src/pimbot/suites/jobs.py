@@ -161,13 +161,11 @@ def train_partition(jobs: list) -> list[list]:
     games through the rollout instead of its tabular sampler: the same distribution,
     another random stream), so `nl`'s clean IPD run, folded into the Reciprocator's
     clean and self-centered one, would change its results."""
-    from pimbot.training.config import resolve
-
     if len(jobs) < 2 or train_strategies([j.spec for j in jobs]) is None:
         return [jobs]
     by_learner: dict[str, list] = {}
     for job in jobs:
-        by_learner.setdefault(resolve(job.spec).run.learner, []).append(job)
+        by_learner.setdefault(job.spec.learner, []).append(job)
     return list(by_learner.values())
 
 
