@@ -471,9 +471,10 @@ def test_c7_er_shortfall_classified_by_the_transfer_counterfactual(tmp_path):
     transfer = run("transfer", 0.95, env_id="escape_room_transfer-v0")
     assert reciprocators.c7([*base, transfer]).judged.causes == (verdicts.PAPER_ENVIRONMENT,)
     # another balance solving the paper's room: the environment is not the cause
-    spec = run("spec", 0.95, config={"grudge": "accumulated"})
-    judged = reciprocators.c7([*base, transfer, spec]).judged
-    assert judged.kind == verdicts.INCONCLUSIVE and "with the spec balance" in judged.reason
+    petty = run("petty", 0.95, config={"grudge": "petty"})
+    judged = reciprocators.c7([*base, transfer, petty]).judged
+    assert judged.kind == verdicts.INCONCLUSIVE
+    assert "with the PIMbot code's ER script's balance, 'linear' → petty_rr" in judged.reason
     # Each setting is its own part, never the best of several: the defaults solving the
     # room do not outvote the code's batch of one, which without a log is inconclusive.
     code = {"lr": 1e-4, "gamma": 0.99, "reciprocal_weight": 5.0, "grudge": "petty"}

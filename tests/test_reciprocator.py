@@ -318,12 +318,14 @@ def test_default_configs():
     assert (matrix_hunt.voi, matrix_hunt.reciprocal_weight) == ("exact", 1.0)
     hunt = learners.default_config("reciprocator", "stag_hunt-v0")
     assert (hunt.voi, hunt.grudge, hunt.reciprocal_weight) == ("learned", "accumulated", 1.0)
-    # Escape Room: greedy_agent reciprocators/run_er.py's learner settings at 128 episodes
-    # per update; NL the same with weight 0.
+    # Escape Room: the authors' credit − debit balance at greedy_agent
+    # reciprocators/run_er.py's learner settings and 128 episodes per update (the script's
+    # own 'linear' balance, petty, is a named row); NL the same with weight 0.
     for env_id in ("escape_room-v0", "escape_room_transfer-v0"):
         for learner, weight in (("reciprocator", 5.0), ("nl", 0.0)):
             room = learners.default_config(learner, env_id)
-            assert (room.voi, room.grudge, room.reciprocal_weight) == ("learned", "petty", weight)
+            balance = (room.voi, room.grudge, room.reciprocal_weight)
+            assert balance == ("learned", "accumulated", weight)
             assert (room.lr, room.gamma, room.ppo_epochs, room.clip) == (1e-4, 0.99, 10, 0.1)
             assert (room.entropy_coef, room.policy_hidden, room.voi_lr) == (0.01, (64, 64), 1e-3)
             assert room.num_envs == 128
@@ -331,7 +333,7 @@ def test_default_configs():
     run = resolve(
         RunConfig("escape_room-v0", (("min_at_lever", 3), ("n_agents", 4)), "reciprocator")
     )
-    assert (run.learner_config.grudge, run.learner_config.lr) == ("petty", 1e-4)
+    assert (run.learner_config.grudge, run.learner_config.lr) == ("accumulated", 1e-4)
     nl = learners.default_config("nl", "ipd-v0")
     assert (nl.reciprocal_weight, nl.voi) == (0.0, "exact")
 

@@ -371,7 +371,7 @@ def test_nl_shares_the_reciprocators_programs_but_not_its_strategies_program():
     }
     room = task_of["reciprocators/rec_er21_clean"]
     assert "reciprocators/nl_er21_clean" in room
-    assert "reciprocators/rec_er21_spec_clean" in room  # the credit − debit balance too
+    assert "reciprocators/rec_er21_petty_clean" in room  # the code's credit-only balance too
     assert task_of["reciprocators/nl_ipd2_clean"] == ("reciprocators/nl_ipd2_clean",)
     assert task_of["reciprocators/rec_ipd2_clean"] == (
         "reciprocators/rec_ipd2_clean",

@@ -48,12 +48,16 @@ _PG_IPD_COLUMN = {
 }
 # The Reciprocator's base is its IPD config (w = 5); elsewhere w = 1.
 _RECIPROCATOR_W1 = {"reciprocal_weight": 1.0}
-# The Reciprocator on Escape Room (every room): the learner settings of the PIMbot code's
+# The Reciprocator on Escape Room (every room): the Reciprocator as its authors publish it,
+# the credit − debit balance (johnlyzhou/reciprocator `configs/coins.yaml`,
+# `reciprocal_reward_type: "petty_payoff"`), at the learner settings of the PIMbot code's
 # Escape Room script (greedy_agent `reciprocators/run_er.py`: PPO lr 1e-4, γ 0.99, K 10,
-# clip 0.1, entropy 0.01, 64 hidden, w 5, reciprocal reward 'linear' = the credit-only
-# `petty_rr` of johnlyzhou/reciprocator `src/agents/reciprocator.py`, VoI lr 1e-3) at 128
-# episodes per update; the script's one episode per update collapses (`num_envs=1` keeps
-# it; docs/deviations.md#reciprocators). NL takes the same with weight 0.
+# clip 0.1, entropy 0.01, 64 hidden, w 5, VoI lr 1e-3) and 128 episodes per update. The
+# script's own balance, 'linear' → the credit-only `petty_rr`, learns to stay at the start
+# (ER(2,1) 0.025 at 10 seeds × 300 updates, where credit − debit reaches 1.00), so it is the
+# named row `--hp grudge=petty` (docs/reciprocators.md#escape-room); the script's one
+# episode per update collapses (`num_envs=1` keeps it; docs/deviations.md#reciprocators).
+# NL takes the same with weight 0.
 _RECIPROCATOR_ESCAPE_ROOM = {
     "lr": 1e-4,
     "gamma": 0.99,
@@ -62,7 +66,7 @@ _RECIPROCATOR_ESCAPE_ROOM = {
     "entropy_coef": 0.01,
     "policy_hidden": (64, 64),
     "reciprocal_weight": 5.0,
-    "grudge": "petty",
+    "grudge": "accumulated",
     "voi_lr": 1e-3,
     "num_envs": 128,
 }

@@ -17,10 +17,12 @@ One iteration, per seed and for all agents at once (docs/reciprocators.md):
 No reward moves between agents: a Reciprocator shapes others only by acting.
 Matrix games declare the original's IPD agent as their default (exact VoI,
 one-step grudge, width-2 networks, 2048 games, refit every 3 on the last batch);
-gridworlds use the learned VoI: Escape Room with the PIMbot code's Escape Room script's
-learner settings (greedy_agent `reciprocators/run_er.py`: lr 1e-4, γ 0.99, entropy 0.01,
-w 5, the petty balance, VoI lr 1e-3) at 128 episodes per update, the Stag Hunt gridworld
-with the accumulated balance.
+gridworlds use the learned VoI: Escape Room with the credit − debit balance the
+Reciprocator's authors publish (johnlyzhou/reciprocator `configs/coins.yaml`, "petty_payoff")
+at the PIMbot code's Escape Room script's learner settings (greedy_agent
+`reciprocators/run_er.py`: lr 1e-4, γ 0.99, entropy 0.01, w 5, VoI lr 1e-3) and 128
+episodes per update (the script's credit-only 'linear' balance is `grudge="petty"`), the
+Stag Hunt gridworld with the accumulated balance as well.
 
 Attacks act through the adversary's actions (bypass), its learning reward
 (self-centered: it learns from env reward only, i.e. it is a naive learner),

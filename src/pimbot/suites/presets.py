@@ -268,7 +268,7 @@ def profile_jobs(scale: Scale) -> list[Job]:
 GRUDGE = (("grudge", "one_step"),)
 """Stag Hunt gridworld Reciprocator runs use the original IPD agent's one-step grudge with the
 learned VoI (docs/reciprocators.md); on the IPD that agent is the default, on Escape
-Room the PIMbot script's learner settings with the credit-only "petty" balance are."""
+Room the credit − debit balance at the PIMbot script's learner settings is."""
 SPEC_BALANCE = (
     ("voi", "learned"),
     ("grudge", "accumulated"),
@@ -279,19 +279,24 @@ SPEC_BALANCE = (
 """The spec's general agent on the IPD: learned VoI, accumulated balance, 64×64 networks."""
 
 
-CODE_ER_RECIPROCATOR = (("num_envs", 1), ("voi_minibatch_rows", "distinct_weighted"))
+CODE_ER_BALANCE = (("grudge", "petty"),)
+"""The PIMbot code's Escape Room script's balance: 'linear' → the credit-only `petty_rr` of
+johnlyzhou/reciprocator (greedy_agent `reciprocators/run_er.py`), in place of the default
+credit − debit, all else at the defaults (docs/reciprocators.md#escape-room)."""
+CODE_ER_RECIPROCATOR = (
+    ("num_envs", 1),
+    ("voi_minibatch_rows", "distinct_weighted"),
+    *CODE_ER_BALANCE,
+)
 """The published code's Reciprocator Escape Room script as it runs (reciprocators/run_er*.py):
 its learner settings are the registry's Escape Room defaults (PPO lr 1e-4, γ 0.99, entropy
-0.01, w 5, the credit-only petty balance, VoI lr 1e-3), which play 128 episodes per update;
-the script plays one episode per update, 5000 episodes (and logs no success). Each refit
+0.01, w 5, VoI lr 1e-3), which play 128 episodes per update, with its credit-only petty
+balance; the script plays one episode per update, 5000 episodes (and logs no success). Each refit
 step evaluates its few stored samples once, weighted by their draws: the same loss as every
 draw, about 10× faster at one episode per update (docs/reciprocators.md)."""
 CODE_ER_EPISODES = 5000
 RECIPROCATOR_ER_UPDATES = 300
 """Updates of the C7 Escape Room runs at the defaults' 128 episodes per update."""
-ER_SPEC_BALANCE = (("grudge", "accumulated"),)
-"""Escape Room with the spec's accumulated credit − debit balance in place of the script's
-petty one, all else at the defaults (docs/reciprocators.md#escape-room)."""
 IPD_GAMES = 2048
 """Games per update of the C7 IPD runs, quick and full: the original trainer's
 (configs/ipd.yaml) and the matrix default."""
@@ -334,13 +339,13 @@ def _reciprocator_settings(scale: Scale) -> list[tuple[Setting, str, tuple[str, 
         (ipd("rec_ipd4", 4), "reciprocator", disrupt),
         (room("rec_er21", 2, 1), "reciprocator", disrupt),
         (room("nl_er21", 2, 1), "nl", ("clean",)),
-        # the same settings with the spec's credit − debit balance in place of the petty one
-        # (it solves the rooms the petty balance does not: docs/reciprocators.md#escape-room)
-        (room("rec_er21_spec", 2, 1, hparams=ER_SPEC_BALANCE), "reciprocator", disrupt),
+        # the same settings with the PIMbot code's ER script's credit-only balance ('linear'
+        # → petty_rr), which learns to stay at the start (docs/reciprocators.md#escape-room)
+        (room("rec_er21_petty", 2, 1, hparams=CODE_ER_BALANCE), "reciprocator", disrupt),
         (room("rec_er42", 4, 2), "reciprocator", disrupt),
-        (room("rec_er42_spec", 4, 2, hparams=ER_SPEC_BALANCE), "reciprocator", disrupt),
+        (room("rec_er42_petty", 4, 2, hparams=CODE_ER_BALANCE), "reciprocator", disrupt),
         (room("rec_er43", 4, 3), "reciprocator", disrupt),
-        (room("rec_er43_spec", 4, 3, hparams=ER_SPEC_BALANCE), "reciprocator", disrupt),
+        (room("rec_er43_petty", 4, 3, hparams=CODE_ER_BALANCE), "reciprocator", disrupt),
         (hunt("rec_sh2", 2), "reciprocator", disrupt),
         (hunt("rec_sh3", 3), "reciprocator", disrupt),
         (hunt("rec_sh4", 4), "reciprocator", disrupt),
@@ -366,10 +371,10 @@ def _reciprocator_settings(scale: Scale) -> list[tuple[Setting, str, tuple[str, 
 
 def reciprocator_jobs(scale: Scale) -> list[Job]:
     """C7: Reciprocators clean vs ADMO (ER, IPD N = 2, 3, 4, Stag Hunt N = 2, 3, 4; ER also
-    with the spec's accumulated balance), NL on ER(2,1), ER(2,1) at the published code's
-    batch of one episode per update, the counterfactual transfer Escape Room, and the
-    2-player IPD fidelity runs (NL vs NL, NL vs Reciprocator, the spec's balance); the full
-    suite adds ER(4,2) and ER(4,3) at the code's batch of one."""
+    with the PIMbot code's credit-only petty balance), NL on ER(2,1), ER(2,1) at the
+    published code's batch of one episode per update, the counterfactual transfer Escape
+    Room, and the 2-player IPD fidelity runs (NL vs NL, NL vs Reciprocator, the spec's
+    balance); the full suite adds ER(4,2) and ER(4,3) at the code's batch of one."""
     return [
         dataclasses.replace(job, claims=("C7",))
         for setting, learner, conditions in _reciprocator_settings(scale)

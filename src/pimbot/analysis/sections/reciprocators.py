@@ -34,8 +34,8 @@ BASELINE = 0.8
 
 
 BALANCE_NAMES = {
-    "accumulated": "spec balance",
-    "petty": "petty balance",
+    "accumulated": "credit − debit balance",
+    "petty": "PIMbot code's ER script's balance, 'linear' → petty_rr",
     "one_step": "one-step grudge",
 }
 """How a run's balance (`grudge`) is named where it is not its env's default."""
@@ -43,7 +43,7 @@ BALANCE_NAMES = {
 
 def default_balance(env_id: str) -> str:
     """The Reciprocator's default balance on `env_id` (its registry entry's env defaults):
-    the one-step grudge on the matrix games, the petty balance on Escape Room; an env
+    the one-step grudge on the matrix games, credit − debit on the gridworlds; an env
     pimbot does not know: the one-step grudge of the C7 runs."""
     if env_id not in envs.registered():
         return "one_step"
@@ -52,9 +52,9 @@ def default_balance(env_id: str) -> str:
 
 def variant(run: RunRecord) -> str:
     """The balance, where it is neither the env's default nor the one-step grudge of the
-    suite's Stag Hunt runs: "spec balance" (the accumulated credit − debit) or "petty
-    balance". Runs stored before the option was named `grudge` carry
-    `original_one_step_grudge` instead."""
+    suite's Stag Hunt runs: the credit − debit balance (on the matrix games) or the PIMbot
+    code's ER script's credit-only petty balance (`BALANCE_NAMES`). Runs stored before the
+    option was named `grudge` carry `original_one_step_grudge` instead."""
     if run.learner != LEARNER:
         return ""  # NL: weight 0, no balance
     config = run.identity["learner_config"]
@@ -93,9 +93,11 @@ def section(table: RunTable, ctx: Context) -> Section | None:
         text=[
             "On the IPD the Reciprocator is the original's matrix agent (exact VoI, "
             "one-step grudge, width-2 networks, 2 048 games per update); on Escape Room the "
-            "original Escape Room script's learner settings (lr 1e-4, γ 0.99, entropy 0.01, "
-            "w 5, the credit-only petty balance, VoI lr 1e-3) at 128 episodes per update, "
-            "with rows at the script's own batch of one episode per update; on the Stag "
+            "credit − debit balance the Reciprocator's authors publish, at the PIMbot code's "
+            "Escape Room script's learner settings (lr 1e-4, γ 0.99, entropy 0.01, w 5, VoI "
+            "lr 1e-3) and 128 episodes per update, with rows of that script's own balance "
+            "('linear' → the credit-only petty_rr), also at its own batch of one episode per "
+            "update; on the Stag "
             "Hunt gridworld the learned VoI with the one-step grudge. NL = the same PPO with "
             "reciprocal weight 0 (also the self-centered adversary). Details and the reasons "
             "for the iteration budgets: docs/reciprocators.md. "
@@ -163,10 +165,17 @@ def size(run: RunRecord) -> tuple:
     return tuple(params.get(k) for k in ("n_agents", "n_players", "min_at_lever"))
 
 
-CODE_SETTINGS = {"lr": 1e-4, "gamma": 0.99, "reciprocal_weight": 5.0, "num_envs": 1}
+CODE_SETTINGS = {
+    "lr": 1e-4,
+    "gamma": 0.99,
+    "reciprocal_weight": 5.0,
+    "num_envs": 1,
+    "grudge": "petty",
+}
 """The original code's Reciprocator Escape Room script as it runs (greedy_agent
 `reciprocators/run_er.py`; docs/reciprocators.md): its learner settings, which are pimbot's
-Escape Room defaults, at its own batch of one episode per update."""
+Escape Room defaults, with its own credit-only balance and batch of one episode per
+update."""
 CODE_LOGS = "the original scripts (greedy_agent reciprocators/run_*.py) log no success"
 """What a C7 disagreement lacks: the original code's Reciprocator scripts, clean and ADMO,
 print the reciprocal reward only."""
