@@ -162,13 +162,16 @@ def test_authenticated_incentive_topic_rejects_forged_and_replayed_messages(loop
     replay = channel.Sender(0, link.senders[0].keyring).send(1, 0, 0, 1.0)  # sequence 0 again
     intruder.write(ros_wire.String(json.dumps(dataclasses_asdict(replay))))
     intruder.write(ros_wire.String("not json"))
-    accepted, verdicts = link.collect(3, timeout=5.0)
+    intruder.write(ros_wire.String("[" * 3000))  # json.loads: RecursionError
+    intruder.write(ros_wire.String(" " * 100_000))
+    accepted, verdicts = link.collect(2, timeout=5.0)
     assert not accepted.any()
-    assert sorted(verdicts) == [
-        "bad tag",
-        "malformed message: not an IncentiveMessage",
-        "replay: sequence already received",
-    ]
+    assert sorted(verdicts) == ["bad tag", "replay: sequence already received"]
+    time.sleep(0.2)
+    assert link.collect(1, timeout=0.5)[1] == []  # what does not parse is no verdict
+    assert node.dropped_counts() == {
+        "/tb3_1/incentive": {"not JSON": 1, "nested too deep": 1, "too large": 1}
+    }
 
 
 def _cli(*args: str) -> list[str]:

@@ -572,12 +572,15 @@ class RobotServe(RobotWire):
     """The audit key file; None: $PIMBOT_AUDIT_KEY_FILE, else ~/.config/pimbot/audit.key."""
     timeout: float = 60.0
     """Wall seconds to wait for the room and for odometry before giving up."""
+    odometry_timeout: float = 0.5
+    """Wall seconds a robot's odometry may be silent before every robot gets a zero cmd_vel
+    (driving resumes when it is back)."""
 
     def int_bounds(self) -> dict[str, int]:
         return {"domain_id": 0, "seed_index": 0, "adversary": 0}
 
     def positive_numbers(self) -> tuple[str, ...]:
-        return ("timeout",)
+        return ("timeout", "odometry_timeout")
 
     def run(self, plugins: tuple[str, ...]) -> int:
         from pimbot.cli.robot import cmd_serve

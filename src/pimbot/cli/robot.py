@@ -6,6 +6,7 @@ pimbot robot render RUN_DIR --out episode.gif|mp4 [--seed-index S] [--episode E]
                     [--renderer auto|mujoco|matplotlib] [--frame FRAME.png]
 pimbot robot serve RUN_DIR [--ros-distro humble|jazzy] [--domain-id D] [--layout FILE.json]
                    [--attack NAME --adversary K] [--authenticated] [--audit-log PATH]
+                   [--odometry-timeout S] [--timeout S]
 pimbot robot world [--robots N --min-at-lever M] [--domain-id D] [--speed X | --lockstep] [--seed S]
 """
 
@@ -285,16 +286,26 @@ def cmd_serve(args) -> int:
         flush=True,
     )
     timing = serve.ServeConfig(
-        args.authenticated, odometry_timeout=args.timeout, layout_timeout=args.timeout
+        args.authenticated, odometry_timeout=args.odometry_timeout, timeout=args.timeout
     )
     try:
         report = serve.serve_episode(policy, cfg, wire, timing, layout, audit)
+    except KeyboardInterrupt as interrupt:  # the robots are stopped, and it said so
+        from pimbot.cli import Terminated
+
+        report = getattr(interrupt, "serve_report", None)
+        if report is not None:
+            _write_json(args.json, report.summary())
+        return 143 if isinstance(interrupt, Terminated) else 130
     finally:
         if audit is not None:
             audit.close()
     summary = report.summary()
-    outcome = "success" if report.success else "no success"
-    print(f"serve: {summary['steps']} decision steps, {outcome}; actions {report.actions}")
+    if report.ended != "done":
+        print(f"serve: ended early ({report.ended}): {report.problem}")
+    else:
+        outcome = "success" if report.success else "no success"
+        print(f"serve: {summary['steps']} decision steps, {outcome}; actions {report.actions}")
     print(
         f"serve: decision latency {summary['decision_ms_mean']:.1f} ms mean, "
         f"{summary['decision_ms_max']:.1f} ms max; incentive messages {report.incentives_sent} "
@@ -302,5 +313,18 @@ def cmd_serve(args) -> int:
         f"DDS messages sent {report.messages['sent']}, received {report.messages['received']}; "
         f"{report.sim_seconds:.1f} s simulated, {report.wall_s:.1f} s wall"
     )
+    if report.dropped or report.commands_limited:
+        print(f"serve: {_counters_text(report)}")
     _write_json(args.json, summary)
-    return 0
+    return 0 if report.ended == "done" else 1
+
+
+def _counters_text(report) -> str:
+    """The messages dropped on the way in and the commands made safe, in one line."""
+    parts = []
+    for topic, reasons in report.dropped.items():
+        counts = ", ".join(f"{count} {reason}" for reason, count in reasons.items())
+        parts.append(f"{topic} {counts}")
+    dropped = "; ".join(parts) if parts else "none"
+    limited = ", ".join(f"{n} {why}" for why, n in report.commands_limited.items()) or "none"
+    return f"dropped messages: {dropped}; commands made safe: {limited}"

@@ -42,6 +42,23 @@ class ControllerConfig:
     """Reversing speed (m/s) when wedged."""
 
 
+def safe_command(linear, angular) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
+    """Every command that leaves a controller, made safe: a robot whose linear or angular
+    velocity is not finite gets (0, 0), and every other velocity is clamped to the
+    TurtleBot3 Burger's limits (±`MAX_LINEAR` m/s, ±`MAX_ANGULAR` rad/s). Returns (linear
+    [N], angular [N], {"not finite": robots stopped, "beyond the limits": robots clamped}).
+    """
+    linear = np.array(linear, dtype=float, ndmin=1)
+    angular = np.array(angular, dtype=float, ndmin=1)
+    finite = np.isfinite(linear) & np.isfinite(angular)
+    linear, angular = np.where(finite, linear, 0.0), np.where(finite, angular, 0.0)
+    beyond = (np.abs(linear) > MAX_LINEAR) | (np.abs(angular) > MAX_ANGULAR)
+    linear = np.clip(linear, -MAX_LINEAR, MAX_LINEAR)
+    angular = np.clip(angular, -MAX_ANGULAR, MAX_ANGULAR)
+    counts = {"not finite": int((~finite).sum()), "beyond the limits": int(beyond.sum())}
+    return linear, angular, counts
+
+
 def wrap_angle(angle):
     """Wraps to (−π, π]."""
     return (np.asarray(angle) + math.pi) % (2 * math.pi) - math.pi

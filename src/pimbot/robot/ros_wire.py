@@ -23,16 +23,30 @@ Topics of the robot Escape Room (ROS names; DDS adds `rt`):
 * `/pimbot/gate` — std_msgs/Float64, how far the gate is open (0 closed, 1 open);
 * `/pimbot/status` — std_msgs/String, the controller's decisions and its end, as JSON.
 
+Every message a `Node` takes goes through `Reader.take`, the one door in: a sample that
+does not deserialize, or that the reader's `parse` refuses (`Dropped`), is dropped and
+counted by topic and reason (`Node.dropped_counts`), never raised; text is parsed as JSON
+only within `bounded_json`'s size and nesting bounds. `Node.rivals` reads DDS discovery for
+writers of other participants on given topics, named by their host, process and pid.
+
 Cyclone DDS is configured by `CYCLONEDDS_URI`; `loopback_config` gives one for a single
 machine without multicast (unicast discovery to 127.0.0.1). No `from __future__ import
 annotations` here: cyclonedds reads the field annotations as types.
 """
 
 import dataclasses
+import json
 import math
+from collections import Counter
+from collections.abc import Callable
 from dataclasses import field
 
-from cyclonedds.core import Policy, Qos
+from cyclonedds.builtin import (
+    BuiltinDataReader,
+    BuiltinTopicDcpsParticipant,
+    BuiltinTopicDcpsPublication,
+)
+from cyclonedds.core import InstanceState, Policy, Qos
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.idl import IdlStruct
 from cyclonedds.idl.types import array, float64, int32, uint32
@@ -247,14 +261,92 @@ def latched_qos() -> Qos:
     )
 
 
-class Node:
-    """One DDS participant with ROS-named topics; counts the messages it writes and takes."""
+class Dropped(Exception):  # noqa: N818 (a verdict on a message, not a failure)
+    """A message refused on the way in: `reason` is the counted category, `detail` what
+    exactly was wrong with this one."""
 
-    def __init__(self, domain_id: int):
-        self.participant = DomainParticipant(domain_id)
+    def __init__(self, reason: str, detail: str = ""):
+        super().__init__(f"{reason}: {detail}" if detail else reason)
+        self.reason, self.detail = reason, detail
+
+
+MAX_JSON_BYTES = 65_536
+"""The largest JSON text a reader parses (a room layout is about 1 KiB)."""
+MAX_JSON_DEPTH = 8
+"""The deepest nesting of arrays and objects a reader parses (a layout nests 3 deep)."""
+
+
+def bounded_json(text: str, max_bytes: int = MAX_JSON_BYTES, max_depth: int = MAX_JSON_DEPTH):
+    """`json.loads(text)` within bounds (`Dropped` "too large", "nested too deep" or "not
+    JSON"): the size is checked first, then the nesting in one pass over the text, so a
+    message deep enough to exhaust Python's recursion never reaches the parser."""
+    if not isinstance(text, str):
+        raise Dropped("not JSON", f"{type(text).__name__}, not text")
+    size = len(text.encode("utf-8", "surrogatepass"))
+    if size > max_bytes:
+        raise Dropped("too large", f"{size} bytes, at most {max_bytes}")
+    if text.count("[") + text.count("{") > max_depth:  # else it cannot nest deeper
+        depth, deepest, in_string, escaped = 0, 0, False, False
+        for char in text:
+            if in_string:
+                if escaped:
+                    escaped = False
+                elif char == "\\":
+                    escaped = True
+                elif char == '"':
+                    in_string = False
+            elif char == '"':
+                in_string = True
+            elif char in "[{":
+                depth += 1
+                deepest = max(deepest, depth)
+            elif char in "]}":
+                depth -= 1
+        if deepest > max_depth:
+            raise Dropped("nested too deep", f"{deepest} levels, at most {max_depth}")
+    try:
+        return json.loads(text)
+    except (ValueError, RecursionError) as error:
+        raise Dropped("not JSON", str(error).splitlines()[0][:120]) from None
+
+
+def _describe(participant) -> str:
+    """A discovered participant as "PROCESS pid PID on HOST (its user data)"."""
+    props = {}
+    user = b""
+    for policy in participant.qos or ():
+        if type(policy).__name__ == "Property":
+            props[policy.key] = policy.value
+        elif isinstance(policy, Policy.Userdata):
+            user = policy.data
+    name = (
+        f"{props.get('__ProcessName', 'a process')} pid {props.get('__Pid', '?')} "
+        f"on {props.get('__Hostname', '?')}"
+    )
+    if user:
+        name += f" ({user.decode('utf-8', 'replace')[:80]})"
+    return name
+
+
+class Node:
+    """One DDS participant with ROS-named topics; counts the messages it writes and takes,
+    and those it drops (by topic and reason)."""
+
+    def __init__(self, domain_id: int, user_data: str | None = None):
+        qos = Qos(Policy.Userdata(user_data.encode())) if user_data else None
+        self.participant = DomainParticipant(domain_id, qos=qos)
         self.topics: dict[str, Topic] = {}
         self.sent: dict[str, int] = {}
         self.received: dict[str, int] = {}
+        self.dropped: dict[str, Counter] = {}
+        self.last_drop: dict[str, str] = {}
+        """Per topic: what was wrong with the last message dropped there."""
+        self.foreign: dict[str, set[str]] = {}
+        """Participant name -> the topics where its messages were dropped (`own_only`)."""
+        self._publications = None
+        self._participants = None
+        self._writers: dict = {}
+        self._names: dict = {}
 
     def _topic(self, ros_topic: str, struct: type[IdlStruct]) -> Topic:
         if ros_topic not in self.topics:
@@ -266,13 +358,61 @@ class Node:
             self, ros_topic, DataWriter(self.participant, self._topic(ros_topic, struct), qos=qos)
         )
 
-    def reader(self, ros_topic: str, struct: type[IdlStruct], qos: Qos) -> "Reader":
-        return Reader(
-            self, ros_topic, DataReader(self.participant, self._topic(ros_topic, struct), qos=qos)
-        )
+    def reader(
+        self,
+        ros_topic: str,
+        struct: type[IdlStruct],
+        qos: Qos,
+        parse: Callable | None = None,
+        own_only: bool = False,
+    ) -> "Reader":
+        """A reader whose `take` returns `parse(sample)` for every sample that deserializes
+        and parses (`parse` raises `Dropped` to refuse one); `own_only`: samples written
+        by another DDS participant are dropped too (and the participant remembered)."""
+        reader = DataReader(self.participant, self._topic(ros_topic, struct), qos=qos)
+        return Reader(self, ros_topic, reader, parse, own_only)
+
+    def drop(self, topic: str, reason: str, detail: str = "") -> None:
+        """Counts one dropped message (never raises)."""
+        self.dropped.setdefault(topic, Counter())[reason] += 1
+        self.last_drop[topic] = f"{reason}: {detail}" if detail else reason
+
+    def dropped_counts(self) -> dict[str, dict[str, int]]:
+        """{topic: {reason: messages dropped}}."""
+        return {t: dict(c) for t, c in sorted(self.dropped.items())}
 
     def messages(self) -> dict[str, int]:
         return {"sent": sum(self.sent.values()), "received": sum(self.received.values())}
+
+    def participant_name(self, key) -> str:
+        """A discovered participant's process, pid and host (its GUID while unknown)."""
+        if key not in self._names:
+            if self._participants is None:
+                self._participants = BuiltinDataReader(
+                    self.participant, BuiltinTopicDcpsParticipant
+                )
+            for sample in self._participants.read(N=256):
+                self._names[sample.key] = _describe(sample)
+        return self._names.get(key, f"participant {key}")
+
+    def rivals(self, ros_topics) -> dict[str, list[str]]:
+        """Writers of other participants on `ros_topics`, from DDS discovery: {participant
+        name: [its topics]} (empty when none; never raises on discovery data)."""
+        if self._publications is None:
+            self._publications = BuiltinDataReader(self.participant, BuiltinTopicDcpsPublication)
+        for sample in self._publications.take(N=256):
+            alive = sample.sample_info.instance_state == InstanceState.Alive
+            if alive:
+                self._writers[sample.key] = (sample.participant_key, sample.topic_name)
+            else:
+                self._writers.pop(sample.key, None)
+        wanted = {dds_topic(t): t for t in ros_topics}
+        own = self.participant.guid
+        found: dict[str, list[str]] = {}
+        for participant, topic in self._writers.values():
+            if participant != own and topic in wanted:
+                found.setdefault(self.participant_name(participant), []).append(wanted[topic])
+        return {name: sorted(set(topics)) for name, topics in found.items()}
 
 
 @dataclasses.dataclass
@@ -291,12 +431,46 @@ class Reader:
     node: Node
     topic: str
     reader: DataReader
+    parse: Callable | None = None
+    own_only: bool = False
 
     def take(self, limit: int = 64) -> list:
-        """The valid samples waiting (disposals and unregistrations dropped)."""
-        out = [s for s in self.reader.take(N=limit) if isinstance(s, IdlStruct)]
-        self.node.received[self.topic] = self.node.received.get(self.topic, 0) + len(out)
+        """The samples waiting, parsed (disposals and unregistrations skipped); one that
+        does not deserialize or parse is dropped and counted, never raised. One sample
+        per call to cyclonedds, so that a bad one costs only itself."""
+        out = []
+        for _ in range(limit):
+            try:
+                got = self.reader.take(N=1)
+            except Exception as error:  # noqa: BLE001 (bytes that are no message of the type)
+                self.node.drop(self.topic, "undecodable", f"{type(error).__name__}: {error}")
+                continue
+            if not got:
+                break
+            sample = got[0]
+            if not isinstance(sample, IdlStruct):
+                continue
+            self.node.received[self.topic] = self.node.received.get(self.topic, 0) + 1
+            try:
+                if self.own_only:
+                    self._check_own(sample)
+                out.append(sample if self.parse is None else self.parse(sample))
+            except Dropped as dropped:
+                self.node.drop(self.topic, dropped.reason, dropped.detail)
+            except Exception as error:  # noqa: BLE001 (a parser's own slip: still a drop)
+                self.node.drop(self.topic, "unparsable", f"{type(error).__name__}: {error}")
         return out
+
+    def _check_own(self, sample) -> None:
+        info = getattr(sample, "sample_info", None)
+        if info is None:
+            return
+        data = self.reader.get_matched_publication_data(info.publication_handle)
+        key = getattr(data, "participant_key", None)
+        if key is not None and key != self.node.participant.guid:
+            name = self.node.participant_name(key)
+            self.node.foreign.setdefault(name, set()).add(self.topic)
+            raise Dropped("from another participant", name)
 
 
 def loopback_config(max_participants: int = 20) -> str:
