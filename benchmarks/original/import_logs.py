@@ -7,8 +7,9 @@ either a checkout (its work tree) or its bare git directory, read with
 ``git cat-file`` at `--commit`. The output (default: pimbot's packaged
 ``src/pimbot/data/original_code``) is replaced: one run directory per setting,
 ``<game>_<horizon>k/<setting>/``, and manifest.json (see
-`pimbot.analysis.original_code`). CI has no network, so the output is committed; rerun
-this script only to regenerate it.
+`pimbot.analysis.original_code`); the runs made here by import_runs.py
+(``made_here_*/``, manifest.json's ``made_here``) are kept. CI has no network, so the
+output is committed; rerun this script only to regenerate it.
 
 What it reads: every ``results/**/log.csv`` and ``lio/results/**/log.csv`` with the
 config.json beside it, and the repository's plot scripts (``*.py``, ``*.ipynb`` at its
@@ -282,8 +283,7 @@ def import_logs(repo: Repository, out: Path) -> dict[str, Any]:
         for p in (p for p, m in logs.items() if m["setting"] == setting):
             entries[p] |= {"status": "left out", "reason": entries[p].get("note", "")}
     plots = plot_references(repo, paths)
-    shutil.rmtree(out, ignore_errors=True)
-    out.mkdir(parents=True)
+    made_here = clear_shipped(out)
     runs = []
     for setting in sorted(by_setting, key=natural_key):
         runs.append(import_setting(repo, setting, by_setting[setting], plots, entries, out))
@@ -300,8 +300,26 @@ def import_logs(repo: Repository, out: Path) -> dict[str, Any]:
         },
         "files": [entries[p] for p in sorted(entries, key=natural_key)],
     }
+    if made_here:
+        content[original_code.MADE_HERE] = made_here
     original_code.write_manifest(out, content)
     return content
+
+
+def clear_shipped(out: Path) -> list[dict[str, Any]]:
+    """Removes what an earlier import of the shipped logs wrote to `out`, keeping the runs
+    made here (``made_here_*/``, import_runs.py); returns manifest.json's list of those."""
+    made_here = []
+    if (out / original_code.MANIFEST).exists():
+        made_here = original_code.manifest(out).get(original_code.MADE_HERE, [])
+    if out.is_dir():
+        for path in out.iterdir():
+            if path.is_dir() and not path.name.startswith(original_code.MADE_HERE + "_"):
+                shutil.rmtree(path)
+            elif path.is_file():
+                path.unlink()
+    out.mkdir(parents=True, exist_ok=True)
+    return made_here
 
 
 def leave_out(entries: dict, logs: list[original_code.DistinctLog], reason: str) -> None:

@@ -36,8 +36,21 @@ and `truncated` the cut directory itself, so the original code and pimbot are co
 at equal horizons (convergence depends on the horizon). `pimbot.analysis.runs.load_table
 (ROOT)` reads them all into a run table (as `RunTable.original`).
 
+Runs made here. Besides the shipped logs, `ROOT` holds runs of the original code made on
+this project's machine (benchmarks/original/run_original_*.py, imported by
+benchmarks/original/import_runs.py), under ``made_here_<...>/<setting>/``: the PIMbot
+code's LIO with its reverse attack on ER(2,1) at 25 000 iterations
+(``made_here_er_25k/er2_1_a2d``, claim C4, attacked), johnlyzhou/reciprocator's IPD
+trainer (``made_here_reciprocator/ipd2``, C7, clean baseline) and the PIMbot code's
+Reciprocator ER script (``made_here_reciprocator/er2_1_run_er``, C7, clean baseline).
+Their ``original`` block has ``made_here: true``, ``made_by``, the ``command``, the
+``fixes_and_shims``, the ``run_time`` per seed, and the same keys as the shipped runs
+(``seeds``, ``claims``, ``claim_roles``, ``columns`` …). `made_here` tells them apart,
+`runs_made_here("C7")` lists them, `shipped_runs` the others; manifest.json lists them
+under ``made_here``.
+
 The writing side (`distinct_logs`, `metrics_rows`, `run_metadata`, `write_run_dir`) is
-what the import script calls; it reads only bytes and pimbot's own env objects.
+what the import scripts call; it reads only bytes and pimbot's own env objects.
 """
 
 from __future__ import annotations
@@ -65,6 +78,9 @@ COMMIT = "a750298569e39c1872868f0e523a50213ee0dd35"
 ROOT = Path(__file__).resolve().parents[1] / "data" / "original_code"
 """The packaged run directories (`ROOT/<group>/<setting>/`) and manifest.json."""
 MANIFEST = "manifest.json"
+MADE_HERE = "made_here"
+"""The key of the runs made here: manifest.json's list of them, and ``original.made_here``
+(true) in each one's config.json; their group directories start with ``made_here_``."""
 ADVERSARY = 0
 """The original code's manipulated agent: agent_0 (the log's A1) is its greedy LIO."""
 VALUE_FORMAT = ".6g"
@@ -103,6 +119,26 @@ def claims_of(run_dir: Path) -> tuple[str, ...]:
     return tuple(original_info(run_dir).get("claims", ()))
 
 
+def made_here(run_dir: Path) -> bool:
+    """Whether the run was made here, by running the original code
+    (benchmarks/original/run_original_*.py, imported by import_runs.py), rather than
+    converted from the logs the PIMbot repository ships."""
+    return bool(original_info(run_dir).get(MADE_HERE, False))
+
+
+def shipped_runs(root: Path = ROOT) -> list[Path]:
+    """The run directories converted from the repository's shipped logs."""
+    return [p for p in run_dirs(root) if not made_here(p)]
+
+
+def runs_made_here(claim: str | None = None, root: Path = ROOT) -> list[Path]:
+    """The runs made here by running the original code (of `claim`, if given), in natural
+    order. Their ``original`` block names the repository, commit, command, fixes and shims
+    (``fixes_and_shims``), who made them and when (``made_by``) and each seed's wall and
+    CPU time (``run_time``)."""
+    return [p for p in run_dirs(root) if made_here(p) and (claim is None or claim in claims_of(p))]
+
+
 def plotted_by(run_dir: Path) -> tuple[str, ...]:
     """The original repository's plot scripts that read this setting's logs (outside
     comments): the series behind the paper's figures. Empty for the other series."""
@@ -129,7 +165,8 @@ def preferred_order(dirs: Iterable[Path]) -> list[Path]:
 
 
 def runs_for_claim(claim: str, root: Path = ROOT) -> list[Path]:
-    """The converted run directories that speak to `claim` (``"C3"``), `preferred_order`."""
+    """The converted run directories that speak to `claim` (``"C3"``), `preferred_order`;
+    the runs made here among them (`made_here`) too."""
     return preferred_order(p for p in run_dirs(root) if claim in claims_of(p))
 
 
@@ -435,9 +472,11 @@ __all__ = [
     "ROOT",
     "SOURCE",
     "DistinctLog",
+    "MADE_HERE",
     "claims_of",
     "distinct_logs",
     "independent_seeds",
+    "made_here",
     "manifest",
     "metrics_rows",
     "one_per_seed",
@@ -447,6 +486,8 @@ __all__ = [
     "run_dirs",
     "run_metadata",
     "runs_for_claim",
+    "runs_made_here",
+    "shipped_runs",
     "summary_at",
     "truncated",
     "write_run_dir",
