@@ -326,8 +326,9 @@ def import_reciprocator_ipd(runs: Path, out: Path) -> dict[str, Any] | None:
             values = {"eval/success": float(row["mutual_cooperation"])}
             for i in (0, 1):
                 values[f"eval/return_env/agent_{i}"] = float(row[f"reward_{i}"]) * max_steps
-                values[f"eval/cooperation/agent_{i}"] = float(row[f"p_cooperate_{i}"])
+                values[f"train/action_0_rate/agent_{i}"] = float(row[f"p_cooperate_{i}"])
             env_columns(values, 2, optimum)
+            values["train/success"] = values["eval/success"]
             rows.append(formatted(update, seed, values))
         seeds.append(
             {
@@ -398,7 +399,10 @@ def import_reciprocator_ipd(runs: Path, out: Path) -> dict[str, Any] | None:
             "eval/success": "mutual_cooperation: the share of the update's 2048 × 32 "
             "game-steps in which both players cooperate (counted by the harness from the "
             "training episode's own sampled actions; the original logs no evaluation)",
-            "eval/cooperation/agent_i": "the trainer's own log: player_i p(cooperate)",
+            "train/success": "the same as eval/success (pimbot's name for the training "
+            "batch's rate)",
+            "train/action_0_rate/agent_i": "the trainer's own log: player_i p(cooperate), "
+            "the share of its actions that cooperate",
             "eval/return_env/agent_i": f"the trainer's own log: player_i reward × {max_steps} "
             "(it logs the mean reward per step)",
             "eval/team_return": "Σ_i return_env",
