@@ -132,9 +132,14 @@ def row_of(markdown: str, start: str) -> str:
 
 def test_a_quick_report_row_carries_the_published_verdict(quick_report):
     markdown = (quick_report / report.MARKDOWN).read_text()
-    assert "| claim | published | rule | measured | verdict | published report's verdict |" in (
-        markdown
-    )
+    assert "| claim | published | measured | verdict | published report's verdict |" in markdown
+    # The summary, first, with the published verdict beside each quick one.
+    summary = markdown.split("## Summary")[1].split("**Contents**")[0]
+    header = "| claim | verdict | the number that carries it | why | published report's verdict |"
+    assert header in summary
+    line = row_of(summary, "| [C4](#claim-c4) |")
+    assert "| ER(2,1) final 0.340" in line and "at 5,000 it" in line
+    assert line.endswith("| ◐ inconclusive |")
     c4 = row_of(markdown, "| C4 |")
     assert "(quick budget; by design: a horizon shorter than the paper's)" in c4
     assert c4.endswith("| ◐ inconclusive |")  # the published report's verdict of C4

@@ -16,7 +16,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pimbot.analysis import document, html_report, markdown_report, plots, report, runs, verdicts
+from pimbot.analysis import (
+    document,
+    html_report,
+    layout,
+    markdown_report,
+    plots,
+    report,
+    runs,
+    verdicts,
+)
 from pimbot.analysis.claims import Claim
 from pimbot.analysis.curves import read_curves
 from pimbot.analysis.document import Report, Section
@@ -100,8 +109,13 @@ def test_provenance_and_contents(built):
     markdown = (built / report.MARKDOWN).read_text()
     page = (built / report.HTML).read_text()
     assert "## Provenance" in markdown and "**Contents**" in markdown
-    assert markdown.index("**Contents**") < markdown.index("## Provenance")
-    assert markdown.index("## Provenance") < markdown.index("## Claims")
+    # The verdicts first: the summary, the contents, the claims (and their details), then
+    # the provenance.
+    order = ["## Summary", "**Contents**", "## Claims", "### Claim details", "## Provenance"]
+    assert [markdown.index(h) for h in order] == sorted(markdown.index(h) for h in order)
+    assert page.index("<h2 id='summary'>") < page.index("<nav class='toc'>")
+    assert page.index("<nav class='toc'>") < page.index("<h2 id='claims'>")
+    assert page.index("<h2 id='claims'>") < page.index("<h2 id='provenance'>")
     for value in (COMMIT, "0.0.test", "| JAX backend | cpu | 4/4 |", "cpu:0", "report generated"):
         assert value in markdown, value
     # The budget of each group, read from the runs.
@@ -193,21 +207,28 @@ def test_verdict_kinds_are_styled_and_marked(built):
         assert f".{kind} {{" in page  # its own style
     markdown = markdown_report.render(rendered)
     assert "**✔ reproduced (quick budget)**" in markdown
-    assert "**✘ refuted — cause: our budget or setting** — x" in markdown
+    assert "**✘ refuted — cause: our budget or setting** — x ([details](#claim-c2))" in markdown
     assert "◐ inconclusive** — 3 seeds" in markdown
     assert "○ not run" in markdown
     assert "**✘ refuted — cause: our spec** — 0.2 < 0.8" in markdown
     assert "**✔ reproduced at the paper's budget** — 0.01 at 25k" in markdown
     assert "<span class='reason'>0.2 &lt; 0.8</span>" in page
-    # A long reason is cut in the table, given in full under it.
-    assert (
-        "part 35; … (in full below)" in markdown and "part 98" not in markdown.split("Measured")[0]
-    )
-    assert "**C7**: m. Verdict: inconclusive: part 0;" in markdown
-    assert "part 98" in markdown
-    # A compact measured cell; the full text below the table, linked.
-    assert "| short ([details](#claim-c2)) |" in markdown
-    assert '<a id="claim-c2"></a>**C2**: long measured text' in markdown
+    # A long reason is cut in the table to a clause that links the claim's details, where
+    # it stands in full.
+    table = markdown.split("### Claim details")[0].split("## Claims")[1]
+    c7 = next(line for line in table.splitlines() if line.startswith("| C7 |"))
+    assert "part 22…" in c7 and "part 98" not in table and c7.endswith("([details](#claim-c7)) |")
+    assert len(c7.split("**")[2]) < layout.REASON_CHARS + 40
+    assert "  - Verdict: ◐ inconclusive: part 0;" in markdown and "part 98" in markdown
+    assert "href='#claim-c7'>details</a>" in page and "<li id='claim-c7'>" in page
+    # A compact measured cell; the full text in the details, with the claim's rule.
+    assert "| short | **✘ refuted" in markdown
+    assert '- <a id="claim-c2"></a>**C2** — b' in markdown
+    assert "  - Measured: long measured text" in markdown and "  - Rule: r" in markdown
+    # The summary: one line per claim row, its verdict, number and why.
+    summary = markdown.split("## Summary")[1].split("**Contents**")[0]
+    assert "| [C5](#claim-c5) | **✘ refuted — cause: our spec** | m | 0.2 < 0.8 |" in summary
+    assert "| [C4](#claim-c4) | **○ not run** | – | 0/1 runs finished |" in summary
     # The real report's claims table has the classes too.
     assert "class='verdict not-run'" in (built / report.HTML).read_text()
 

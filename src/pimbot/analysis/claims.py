@@ -60,6 +60,14 @@ class Claim:
     """The paper | original code | pimbot rows of the claim."""
     jobs_of: str = ""
     """The suite claim whose jobs feed it ("C1" for C1a and C1b); empty: its id."""
+    headline: str = ""
+    """The one number that carries the verdict, with its interval, as the report's summary
+    shows it ("ER(2,1) final 0.148 [0.046, 0.290] at 10,000 it"); empty: derived from the
+    verdict's deciding part and `numbers` (`analysis.summary.headline`)."""
+    why: str = ""
+    """A clause of why, for the summary (≤ `summary.WHY_CHARS` characters; "the seeds
+    cannot tell it from 0"); empty: the first clause of the verdict's reason
+    (`analysis.summary.why`)."""
 
     @property
     def judged(self) -> Verdict:
@@ -69,6 +77,29 @@ class Claim:
     @property
     def suite_claim(self) -> str:
         return self.jobs_of or self.id
+
+
+def deciding_part(verdict: Verdict) -> tuple[str, Verdict] | None:
+    """(name, verdict) of the part that decides a claim row's verdict: the first part of
+    the row's kind, the one `verdicts.combine` names first; None for a row judged in one
+    piece (or with no part of its kind)."""
+    return next(((n, v) for n, v in verdict.parts if v.kind == verdict.kind), None)
+
+
+def summarized(
+    verdict: Verdict, numbers: dict[str, str], weakest: str = "", agreed: str = "", why: str = ""
+) -> dict[str, str]:
+    """A claim row's summary fields (`Claim.headline`, `Claim.why`) from the number of each
+    of its parts (`numbers`, by part name, each with its interval): the deciding part's
+    number (`deciding_part`); where every part is reproduced, the number of `weakest` (the
+    part nearest to failing; else the first) and `agreed` as the why. `why` is the why
+    otherwise; left empty, the summary derives it from the deciding part's reason."""
+    agrees = verdict.kind in (verdicts.REPRODUCED, verdicts.AT_BUDGET)
+    found = deciding_part(verdict)
+    name = weakest if agrees and weakest in numbers else (found[0] if found else "")
+    if name not in numbers:
+        name = next(iter(numbers), "")
+    return {"headline": numbers.get(name, ""), "why": agreed if agrees else why}
 
 
 # --- the suite's claims table -----------------------------------------------------------

@@ -38,11 +38,14 @@ def render(report: Report, out: Path) -> str:
         f"<style>\n{stylesheet()}</style></head><body><h1>pimbot: {report.kind} report</h1>",
     ]
     parts += [f"<p>{html.escape(p)}</p>" for p in layout.intro(report)]
-    parts.append(contents(report))
-    parts += section_html(report.provenance, out, anchors, titled)
     if report.claims:
-        parts += [f"<h2 id='{anchors['Claims'].pop(0)}'>Claims</h2>", claims_html(report)]
+        parts.append(summary_html(report, anchors[layout.SUMMARY].pop(0)))
+    parts.append(contents(report))
+    if report.claims:
+        parts += [f"<h2 id='{anchors[layout.CLAIMS].pop(0)}'>Claims</h2>", claims_html(report)]
         parts += [titled(t) for t in (layout.shown_parts(report), report.numbers) if t is not None]
+        parts.append(details_html(report, anchors[layout.DETAILS].pop(0)))
+    parts += section_html(report.provenance, out, anchors, titled)
     for section in report.sections:
         parts += section_html(section, out, anchors, titled)
     parts.append("</body></html>")
@@ -83,13 +86,42 @@ def contents(report: Report) -> str:
     return "".join(parts)
 
 
+def summary_html(report: Report, anchor: str) -> str:
+    """The summary: one row per claim row with its verdict, the number that carries it and
+    why (a quick report's with the published report's verdict), each linked to its
+    details."""
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in layout.summary_header(report))
+    rows = []
+    for line in layout.summary_lines(report):
+        beside = ""
+        if line.published is not None:
+            kind, text = line.published
+            beside = f"<td class='verdict published {kind}'>{html.escape(text)}</td>"
+        rows.append(
+            f"<tr><td class='id'><a href='#{line.anchor}'>{html.escape(line.id)}</a>"
+            f"<span class='claim'>{html.escape(line.claim)}</span></td>"
+            f"<td class='verdict {line.kind}'>{html.escape(line.verdict)}</td>"
+            f"<td class='number'>{html.escape(line.headline)}</td>"
+            f"<td class='why'>{html.escape(line.why)}</td>{beside}</tr>"
+        )
+    return (
+        f"<h2 id='{anchor}'>{layout.SUMMARY}</h2><table class='summary'><tr>{head}</tr>"
+        f"{''.join(rows)}</table><p class='legend'>{html.escape(layout.SUMMARY_NOTE)}</p>"
+    )
+
+
+def details_link(claim: Claim) -> str:
+    return f"<a class='more' href='#{layout.claim_anchor(claim)}'>details</a>"
+
+
 def verdict_cell(claim: Claim) -> str:
+    """The verdict, its reason cut to a clause and the link to the claim's details."""
     verdict = claim.verdict
     reason = layout.reason(claim)
-    why = f"<br><span class='reason'>{html.escape(reason)}</span>" if reason else ""
+    why = f"<span class='reason'>{html.escape(reason)}</span> " if reason else ""
     return (
         f"<td class='verdict {verdict.kind}'><span class='mark'>{MARKERS[verdict.kind]}</span> "
-        f"{html.escape(verdict.label)}{why}</td>"
+        f"{html.escape(verdict.label)}<br>{why}{details_link(claim)}</td>"
     )
 
 
@@ -100,19 +132,15 @@ def published_cell(claim: Claim) -> str:
 
 
 def claims_html(report: Report) -> str:
-    """The claims table (a quick report's with the published report's verdicts), its
-    verdict legend and every number measured in full."""
-    claims = report.claims
+    """The claims table (a quick report's with the published report's verdicts) and its
+    verdict legend; every cell short, each row linked to its details."""
     head = "".join(f"<th>{html.escape(h)}</th>" for h in layout.claims_header(report))
     rows = []
-    for c in claims:
-        measured = html.escape(layout.measured_cell(c))
-        if layout.has_details(c):
-            measured += f" <a href='#{layout.claim_anchor(c)}'>details</a>"
+    for c in report.claims:
         beside = published_cell(c) if report.quick else ""
         rows.append(
             f"<tr><td>{html.escape(c.id)}</td><td>{html.escape(c.claim)}</td>"
-            f"<td class='rule'>{html.escape(c.rule)}</td><td class='measured'>{measured}</td>"
+            f"<td class='measured'>{html.escape(layout.measured_cell(c))}</td>"
             f"{verdict_cell(c)}{beside}</tr>"
         )
     legend = "".join(
@@ -121,12 +149,20 @@ def claims_html(report: Report) -> str:
     )
     parts = [f"<table class='claims'><tr>{head}</tr>{''.join(rows)}</table>"]
     parts.append(f"<p class='legend'>Verdicts: {legend}</p>")
-    details = [c for c in claims if layout.has_details(c)]
-    if details:
-        items = "".join(
-            f"<li id='{layout.claim_anchor(c)}'><b>{html.escape(c.id)}</b>: "
-            f"{html.escape(layout.in_full(c))}</li>"
-            for c in details
-        )
-        parts.append(f"<p>Measured, in full:</p><ul class='details'>{items}</ul>")
     return "".join(parts)
+
+
+def details_html(report: Report, anchor: str) -> str:
+    """Every claim row's rule, every number measured and its verdict's reason, in full."""
+    items = []
+    for c in report.claims:
+        items.append(
+            f"<li id='{layout.claim_anchor(c)}'><b>{html.escape(c.id)}</b> — "
+            f"{html.escape(c.claim)}<dl><dt>Rule</dt><dd>{html.escape(c.rule)}</dd>"
+            f"<dt>Measured</dt><dd>{html.escape(c.measured)}</dd><dt>Verdict</dt>"
+            f"<dd class='{c.verdict.kind}'>{html.escape(layout.full_reason(c))}</dd></dl></li>"
+        )
+    return (
+        f"<h3 id='{anchor}'>{layout.DETAILS}</h3><p>Each claim row's rule, every number "
+        f"measured and its verdict's reason, in full.</p><ul class='details'>{''.join(items)}</ul>"
+    )

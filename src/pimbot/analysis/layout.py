@@ -1,6 +1,7 @@
 """What the Markdown and the HTML report both show, in one place: the opening paragraphs,
-the table of contents and its anchors, and the claims table's cells (a verdict's reason
-cut to fit, the measured numbers in full below the table).
+the summary (analysis.summary), the table of contents and its anchors, and the claims
+table's cells (a verdict's reason cut to a clause that links the claim's details, where
+its rule, every number measured and the verdict's reason stand in full).
 
 The renderers (analysis.markdown_report, analysis.html_report) differ only in markup.
 """
@@ -11,7 +12,7 @@ import dataclasses
 from collections import Counter
 
 from pimbot.analysis import claims as claim_model
-from pimbot.analysis import published, verdicts
+from pimbot.analysis import summary, verdicts
 from pimbot.analysis.claims import Claim
 from pimbot.analysis.document import TABLES, Figure, Report, slug
 from pimbot.analysis.tables import Table
@@ -19,12 +20,22 @@ from pimbot.suites import presets, sweep
 
 VERDICT_LEGEND = verdicts.LEGEND
 """Verdict kind -> its line in the legend under the claims table."""
-CLAIMS_HEADER = ["claim", "published", "rule", "measured", "verdict"]
-"""The claims table's columns ("published": the paper's claim)."""
+CLAIMS_HEADER = ["claim", "published", "measured", "verdict"]
+"""The claims table's columns ("published": the paper's claim; its rule is in the
+claim's details)."""
+SUMMARY_HEADER = ["claim", "verdict", "the number that carries it", "why"]
+"""The summary's columns."""
 PUBLISHED_HEADER = "published report's verdict"
 """The column a quick report adds: the published report's verdict of the same row."""
-REASON_CHARS = 320
-"""A verdict's reason longer than this is cut in the claims table (in full below it)."""
+REASON_CHARS = 200
+"""A verdict's reason (and a measured cell) longer than this is cut in the claims table,
+at a clause boundary (in full in the claim's details)."""
+MEASURED_CHARS = 160
+"""A measured cell without a short form is cut to this many characters."""
+SUMMARY = "Summary"
+CLAIMS = "Claims"
+DETAILS = "Claim details"
+PROVENANCE = "Provenance"
 SKIPPED_LISTED = 12
 """Skipped grid cells named in the opening paragraphs (all of them are in index.json)."""
 
@@ -106,16 +117,21 @@ def figure_title(figure: Figure) -> str:
 
 
 def outline(report: Report) -> list[tuple[int, str, str]]:
-    """(level, text, anchor) of every entry of the table of contents, in order."""
+    """(level, text, anchor) of every entry of the table of contents, in the page's order:
+    the summary and the claims (their parts, numbers and details) first, then the
+    provenance and the sections."""
     anchors = Anchors()
-    entries = [(1, "Provenance", anchors("Provenance"))]
-    for table in report.provenance.tables:
-        entries.append((2, table.title, anchors(table.title)))
+    entries = []
     if report.claims:
-        entries.append((1, "Claims", anchors("Claims")))
+        entries.append((1, SUMMARY, anchors(SUMMARY)))
+        entries.append((1, CLAIMS, anchors(CLAIMS)))
         for table in (report.parts, report.numbers):
             if table is not None:
                 entries.append((2, table.title, anchors(table.title)))
+        entries.append((2, DETAILS, anchors(DETAILS)))
+    entries.append((1, PROVENANCE, anchors(PROVENANCE)))
+    for table in report.provenance.tables:
+        entries.append((2, table.title, anchors(table.title)))
     for section in report.sections:
         entries.append((1, section.title, anchors(section.title)))
         entries += [(2, figure_title(f), f.anchor) for f in section.figures]
@@ -133,20 +149,43 @@ def headings(report: Report) -> dict[str, list[str]]:
     return out
 
 
+# --- the summary --------------------------------------------------------------------------
+
+
+def summary_lines(report: Report) -> list[summary.Line]:
+    """One line per claim row: verdict, the number that carries it, why (analysis.summary)."""
+    return summary.lines(report.claims, report.quick, claim_anchor)
+
+
+def summary_header(report: Report) -> list[str]:
+    return SUMMARY_HEADER + ([PUBLISHED_HEADER] if report.quick else [])
+
+
+SUMMARY_NOTE = (
+    "One line per claim row: its verdict, the one number that carries it with its 95 % "
+    "interval (the range over seeds below 5 seeds) and why; the claims table below links "
+    "each row to its rule and every number measured."
+)
+
+
 # --- the claims table's cells -----------------------------------------------------------
 
 
-def cut_text(text: str, more: str = "; … (in full below)") -> str:
-    """`text` cut at a "; " before REASON_CHARS, `more` appended where it was cut."""
-    if len(text) <= REASON_CHARS:
+def cut_text(text: str, more: str = "…", chars: int = REASON_CHARS) -> str:
+    """`text` cut at a "; " before `chars` (else at a ", " or a space, never inside an
+    interval), `more` appended where it was cut."""
+    if len(text) <= chars:
         return text
-    cut = text.rfind("; ", 0, REASON_CHARS)
-    return text[: cut if cut > 0 else REASON_CHARS] + more
+    room = chars - len(more)
+    at = text.rfind("; ", 0, room)
+    if at > room // 3:
+        return text[:at] + more
+    return summary.cut(text, room + 1).removesuffix("…") + more
 
 
 def reason(claim: Claim) -> str:
-    """The verdict's reason as the claims table shows it ("" for not run), cut at a "; "
-    before REASON_CHARS."""
+    """The verdict's reason as the claims table shows it ("" for not run): a clause, cut
+    at a "; " before REASON_CHARS."""
     return cut_text(claim.verdict.reason if claim.verdict.kind != verdicts.NOT_RUN else "")
 
 
@@ -164,25 +203,17 @@ def shown_parts(report: Report) -> Table | None:
     return dataclasses.replace(table, rows=rows)
 
 
-def has_details(claim: Claim) -> bool:
-    """Whether the claim's measured numbers (or its verdict's reason) go below the table."""
-    shorter = bool(claim.summary) and claim.summary != claim.measured
-    return shorter or reason(claim) != (
-        claim.verdict.reason if claim.verdict.kind != verdicts.NOT_RUN else ""
-    )
-
-
 def measured_cell(claim: Claim) -> str:
-    """The measured cell: the short form where the numbers are given in full below."""
-    return (claim.summary or claim.measured) if has_details(claim) else claim.measured
+    """The measured cell: the claim's short form, or its numbers cut to MEASURED_CHARS (in
+    full in its details)."""
+    return claim.summary or cut_text(claim.measured, "…", MEASURED_CHARS)
 
 
-def in_full(claim: Claim) -> str:
-    """The details line: every number measured, and the verdict's reason where it was cut."""
-    text = claim.measured
-    if reason(claim) != claim.verdict.reason and claim.verdict.kind != verdicts.NOT_RUN:
-        text += f". Verdict: {claim.verdict}"
-    return text
+def full_reason(claim: Claim) -> str:
+    """The verdict as the details give it: its label and its reason in full."""
+    return f"{marked_verdict(claim.verdict)}" + (
+        f": {claim.verdict.reason}" if claim.verdict.reason else ""
+    )
 
 
 def claim_anchor(claim: Claim) -> str:
@@ -202,8 +233,4 @@ def claims_header(report: Report) -> list[str]:
 def published_verdict(claim: Claim) -> tuple[str, str]:
     """(kind, marked label) of the published report's verdict of a claim row; ("", "–")
     where the published report has no such row."""
-    label = published.shipped().verdict(claim.id)
-    if label is None:
-        return "", "–"
-    kind = verdicts.kind_of_label(label)
-    return kind, f"{verdicts.MARKERS[kind]} {label}"
+    return summary.published_verdict(claim)

@@ -17,14 +17,17 @@ def render(report: Report) -> str:
 
     lines = [f"# pimbot: {report.kind} report", ""]
     lines += [p + "\n" for p in layout.intro(report)]
+    if report.claims:
+        lines += [anchor(layout.SUMMARY), f"## {layout.SUMMARY}", ""]
+        lines += summary_lines(report)
     lines += ["**Contents**", ""]
     for level, text, target in layout.outline(report):
         lines.append(f"{'  ' * (level - 1)}- [{text}](#{target})")
     lines.append("")
-    lines += section_lines(report.provenance, anchor)
     if report.claims:
-        lines += [anchor("Claims"), "## Claims", ""]
+        lines += [anchor(layout.CLAIMS), f"## {layout.CLAIMS}", ""]
         lines += claims_lines(report, anchor)
+    lines += section_lines(report.provenance, anchor)
     for section in report.sections:
         lines += section_lines(section, anchor)
     return "\n".join(lines)
@@ -46,18 +49,29 @@ def section_lines(section: Section, anchor) -> list[str]:
     return out
 
 
+def summary_lines(report: Report) -> list[str]:
+    """The summary: one row per claim row with its verdict, the number that carries it and
+    why (a quick report's with the published report's verdict)."""
+    rows = []
+    for line in layout.summary_lines(report):
+        rows.append(
+            [f"[{line.id}](#{line.anchor})", f"**{line.verdict}**", line.headline, line.why]
+            + ([line.published[1]] if line.published is not None else [])
+        )
+    return markdown_lines(Table(layout.summary_header(report), rows)) + [layout.SUMMARY_NOTE, ""]
+
+
 def claims_lines(report: Report, anchor) -> list[str]:
-    """The claims table, its verdict legend, the paper | original code | pimbot table and
-    every number measured where the table gives a short form."""
+    """The claims table (its cells short, each row linked to its details), its verdict
+    legend, the parts and the paper | original code | pimbot tables, and every claim's
+    details: its rule, every number measured and its verdict's reason in full."""
     rows = []
     for c in report.claims:
-        measured = layout.measured_cell(c)
-        if layout.has_details(c):
-            measured += f" ([details](#{layout.claim_anchor(c)}))"
         verdict = f"**{layout.marked_verdict(c.verdict)}**"
         if layout.reason(c):
             verdict += f" — {layout.reason(c)}"
-        rows.append([c.id, c.claim, c.rule, measured, verdict])
+        verdict += f" ([details](#{layout.claim_anchor(c)}))"
+        rows.append([c.id, c.claim, layout.measured_cell(c), verdict])
         if report.quick:
             rows[-1].append(layout.published_verdict(c)[1])
     lines = markdown_lines(Table(layout.claims_header(report), rows))
@@ -67,12 +81,14 @@ def claims_lines(report: Report, anchor) -> list[str]:
         if table is not None:
             lines.append(anchor(table.title))
             lines += markdown_lines(table)
-    details = [c for c in report.claims if layout.has_details(c)]
-    if details:
-        lines += ["Measured, in full:", ""]
+    lines += [anchor(layout.DETAILS), f"### {layout.DETAILS}", ""]
+    lines += ["Each claim row's rule, every number measured and its verdict's reason, in full.", ""]
+    for c in report.claims:
         lines += [
-            f'- <a id="{layout.claim_anchor(c)}"></a>**{c.id}**: {layout.in_full(c)}'
-            for c in details
+            f'- <a id="{layout.claim_anchor(c)}"></a>**{c.id}** — {c.claim}',
+            f"  - Rule: {c.rule}",
+            f"  - Measured: {c.measured}",
+            f"  - Verdict: {layout.full_reason(c)}",
         ]
-        lines.append("")
+    lines.append("")
     return lines

@@ -32,13 +32,13 @@ import dataclasses
 import numpy as np
 
 from pimbot.analysis import judging, verdicts
-from pimbot.analysis.claims import Claim, Comparison
+from pimbot.analysis.claims import Claim, Comparison, deciding_part, summarized
 from pimbot.analysis.document import count_text
 from pimbot.analysis.judging import PAPER_ATTACK_BUDGET, iteration_text
 from pimbot.analysis.runs import CLEAN, RunRecord, RunTable, pooled, settings_difference
 from pimbot.analysis.tables import Table, difference, estimate
 from pimbot.analysis.verdicts import Verdict
-from pimbot.statistics import difference_p_value
+from pimbot.statistics import difference_p_value, sign_p_value
 from pimbot.training.summary import FINAL_WINDOW
 
 ROOMS = ("ER(2,1)", "ER(4,2)", "ER(4,3)")
@@ -195,13 +195,14 @@ def _missing() -> Verdict:
 
 
 def c1a(data: Runs) -> Claim:
-    parts, numbers = {}, []
+    parts, numbers, margins = {}, [], {}
     for env in C1_ENVS:
         run = data.get(env, "self_centered")
         if run is None:
             parts[env] = _missing()
             continue
         margin = estimate(run.per_seed("eval/adversary_margin_env"), 2, signed=True)
+        margins[env] = margin
         judged = judging.above(margin, 0.0, "margin")
         row = data.compare(
             f"{env} self-centered margin",
@@ -227,7 +228,32 @@ def c1a(data: Runs) -> Claim:
         _short(parts),
         numbers,
         jobs_of="C1",
+        **summarized(
+            verdicts.combine(parts),
+            {env: f"{env} margin {m}" for env, m in margins.items() if m is not None},
+            weakest=_lowest(margins),
+            agreed="the self-centered adversary's return is above the others' mean in "
+            f"{_envs(margins)} (the lowest interval shown)",
+        ),
     )
+
+
+def _lowest(estimates: dict) -> str:
+    """The key of the estimate whose interval reaches lowest ("" without one)."""
+    known = {k: e for k, e in estimates.items() if e is not None}
+    return min(known, key=lambda k: known[k].lo) if known else ""
+
+
+def _highest(estimates: dict) -> str:
+    """The key of the estimate whose interval reaches highest ("" without one)."""
+    known = {k: e for k, e in estimates.items() if e is not None}
+    return max(known, key=lambda k: known[k].hi) if known else ""
+
+
+def _envs(names) -> str:
+    """ "ER(2,1), ER(4,2) and IPD(2)"."""
+    names = list(names)
+    return ", ".join(names[:-1]) + f" and {names[-1]}" if len(names) > 1 else "".join(names)
 
 
 CRITERIA = ("first crossing", "strict")
@@ -240,7 +266,7 @@ def crossings(curves, column: str, until: int) -> dict[str, list]:
 
 
 def c1b(data: Runs) -> Claim:
-    parts, numbers, measured = {}, [], []
+    parts, numbers, measured, headlines, whys = {}, [], [], {}, {}
     for env, paper in PAPER_SPEED.items():
         clean, selfish = data.get(env, CLEAN), data.get(env, "self_centered")
         if clean is None or selfish is None:
@@ -265,6 +291,19 @@ def c1b(data: Runs) -> Claim:
         numbers += _speed_rows(env, (a, b), column, horizon, paper, logs)
         judged = _speed_verdict(data, (clean, selfish), column, ours, horizon, paper[0], logs)
         parts[env] = verdicts.stated_at(judged, horizon, paper[0])  # the paper's clean speed
+        clean_at, selfish_at = ours["first crossing"]
+        faster = judging.earlier(selfish_at, clean_at)[0]
+        headlines[env] = (
+            f"{env} first crossing of 0.9 {iteration_text(judging.median_iteration(clean_at))} → "
+            f"{iteration_text(judging.median_iteration(selfish_at))}, p = {faster:.3f} earlier"
+        )
+        if horizon < paper[0]:
+            whys[env] = (
+                f"the runs stop at {horizon:,} it, before the paper's clean run converges "
+                f"({paper[0]:,} it), so the two speeds cannot be compared there"
+            )
+    verdict = verdicts.combine(parts)
+    found = deciding_part(verdict)
     return Claim(
         "C1b",
         "self-centered: ER converges faster than clean LIO (20k → 12.5k, 14k → 10.5k)",
@@ -275,10 +314,16 @@ def c1b(data: Runs) -> Claim:
         "the same test is evidence against, classified by the original code's logs of both "
         "runs (pooled over the log directories that reach the horizon); neither: inconclusive",
         "; ".join(measured) or _parts_text(parts),
-        verdicts.combine(parts),
+        verdict,
         _short(parts),
         numbers,
         jobs_of="C1",
+        **summarized(
+            verdict,
+            headlines,
+            agreed=f"the self-centered runs cross 0.9 earlier in {_envs(headlines)}",
+            why=whys.get(found[0], "") if found else "",
+        ),
     )
 
 
@@ -464,7 +509,7 @@ def c2(data: Runs) -> list[Claim]:
 
 
 def _c2_row(data: Runs, c: float, found: dict[str, RunRecord]) -> Claim:
-    parts, numbers = {}, []
+    parts, numbers, changes, falls_p = {}, [], {}, {}
     for env in ROOMS:
         run = found.get(env)
         if run is None:
@@ -474,6 +519,10 @@ def _c2_row(data: Runs, c: float, found: dict[str, RunRecord]) -> Claim:
         row = data.compare(quantity, "~0", run, "eval/success")
         numbers.append(row)
         parts[env] = _c2_part(data, run)
+        early, final = falls(run)
+        if early.size and final.size:
+            changes[env] = estimate(final - early, signed=True)
+            falls_p[env] = sign_p_value(final - early, "less")
     where = "the original code's" if c == CODE_AMOUNT else "the paper's text's"
     return Claim(
         "C2" if c == CODE_AMOUNT else f"C2 (C = {c:g})",
@@ -491,6 +540,16 @@ def _c2_row(data: Runs, c: float, found: dict[str, RunRecord]) -> Claim:
         _short(parts),
         numbers,
         jobs_of="C2",
+        **summarized(
+            verdicts.combine(parts),
+            {
+                env: f"{env} final − early success {d}, p = {falls_p[env]:.3f} for a fall"
+                for env, d in changes.items()
+            },
+            weakest=_highest(changes),
+            agreed=f"success falls from its early level to ≈ 0 in {_envs(changes)} (the "
+            "smallest fall shown)",
+        ),
     )
 
 
@@ -550,7 +609,7 @@ def _c2_part(data: Runs, run: RunRecord) -> Verdict:
 
 
 def c3(data: Runs) -> Claim:
-    parts, lines, numbers = {}, [], []
+    parts, lines, numbers, finals, forbidden, solved = {}, [], [], {}, [], []
     for env in ROOMS:
         run = data.get(env, "bypass")
         if run is None:
@@ -560,6 +619,8 @@ def c3(data: Runs) -> Claim:
         reachable = data.success_reachable(run)
         structure = judging.structure_text(params, run.adversary, reachable)
         final = estimate(run.per_seed("eval/success"))
+        finals[env] = f"{env} bypass success {final}"
+        (solved if reachable else forbidden).append(env)
         claimed = "solved" if reachable else "0"
         row = data.compare(f"{env} bypass success", claimed, run, "eval/success")
         numbers.append(row)
@@ -594,6 +655,18 @@ def c3(data: Runs) -> Claim:
         verdicts.combine(parts),
         _short(parts),
         numbers,
+        **summarized(
+            verdicts.combine(parts),
+            finals,
+            weakest=solved[0] if solved else "",
+            agreed=(
+                f"the rules leave {_envs(forbidden)} no success with the adversary idle "
+                f"(measured 0)"
+                * bool(forbidden)
+                + "; " * bool(forbidden and solved)
+                + f"{_envs(solved)}'s redundant team still solves it" * bool(solved)
+            ),
+        ),
     )
 
 
@@ -671,7 +744,7 @@ def reverse(data: Runs, env: str, run: RunRecord) -> Reverse:
 
 
 def c4(data: Runs) -> Claim:
-    at_budget, numbers, lines, late = {}, [], [], []
+    at_budget, numbers, lines, late, finals = {}, [], [], [], {}
     for env in ROOMS:
         run = data.get(env, "reverse")
         if run is None:
@@ -683,6 +756,7 @@ def c4(data: Runs) -> Claim:
         )
         lines.append(measured.line)
         numbers.append(measured.number)
+        finals[env] = f"{env} final {measured.number.pimbot} at {measured.number.horizon}"
         if measured.late is not None:
             late.append(measured.late)
     note = (
@@ -704,6 +778,13 @@ def c4(data: Runs) -> Claim:
         verdicts.combine(at_budget),
         _short(at_budget) + (" (later: " + ", ".join(late) + ")" if late else ""),
         numbers,
+        **summarized(
+            verdicts.combine(at_budget),
+            finals,
+            weakest="ER(2,1)",
+            agreed="success falls to ≈ 0 in ER(2,1) and ER(4,3) and stays above 0 in ER(4,2), "
+            f"at the paper's {PAPER_ATTACK_BUDGET:,} it",
+        ),
     )
 
 
@@ -825,7 +906,7 @@ def c5(data: Runs) -> Claim:
             attacks[attack] = admo_parts(data, attack)
     if "admo" not in attacks:
         return Claim("C5", C5_CLAIM, "–", "no ADMO run", verdicts.not_run("no ADMO run"))
-    parts, _, notes = attacks["admo"]
+    parts, rows, notes = attacks["admo"]
     code_parts = attacks.get("admo_code", ({}, [], []))[0]
     parts = {name: _classified(name, v, code_parts) for name, v in parts.items()}
     shapes, met = [], {}
@@ -854,7 +935,24 @@ def c5(data: Runs) -> Claim:
         measured,
         verdicts.combine(parts),
         "paper's shapes: " + ", ".join(shapes) + "; " + _short(parts),
+        **summarized(
+            verdicts.combine(parts),
+            _c5_numbers(rows),
+            agreed="the stealthy adversary's margin and own exit success are above the "
+            "clean team's, and disrupt lowers success where every agent is needed",
+        ),
     )
+
+
+def _c5_numbers(rows: list[list]) -> dict[str, str]:
+    """The number of each C5 part (by part name), from the ADMO table's rows."""
+    out = {}
+    for env, condition, _, margin, _, own_gain, d_success, _ in rows:
+        name = f"{env} {condition}"
+        out[f"{name} margin"] = f"{name} margin {margin}"
+        out[f"{name} own success"] = f"{name} own exit success − clean per agent {own_gain}"
+        out[f"{name} disrupts"] = f"{name} Δ success {d_success}"
+    return out
 
 
 def _classified(name: str, verdict: Verdict, code_parts: dict[str, Verdict]) -> Verdict:

@@ -9,7 +9,7 @@ import numpy as np
 
 from pimbot import statistics
 from pimbot.analysis import plots, verdicts
-from pimbot.analysis.claims import Claim, Comparison
+from pimbot.analysis.claims import Claim, Comparison, deciding_part, summarized
 from pimbot.analysis.document import Context, Section, count_text
 from pimbot.analysis.runs import (
     PROFILE_RUN,
@@ -411,7 +411,36 @@ def c8(summary: dict) -> Claim:
         verdict,
         short,
         numbers=numbers,
+        **summarized(
+            verdict,
+            _c8_headlines(numbers),
+            agreed="ADMO's extra time arrives in its update steps and it saturates neither the "
+            "CPU nor the GPU",
+            why=_c8_why(verdict),
+        ),
     )
+
+
+def _c8_headlines(numbers: list[Comparison]) -> dict[str, str]:
+    """The number of each C8 part, from its paper | original | pimbot rows (overhead, update
+    steps' share, process CPU)."""
+    if len(numbers) < 3:
+        return {}
+    return {
+        "bursty": f"update steps {numbers[1].pimbot} of ADMO's extra time",
+        "saturation": f"ADMO process CPU {numbers[2].pimbot} of its cores",
+    }
+
+
+def _c8_why(verdict: Verdict) -> str:
+    """Why C8's deciding part is not reproduced: its reason after the numbers."""
+    found = deciding_part(verdict)
+    if found is None or found[1].kind == verdicts.REPRODUCED:
+        return ""
+    name, part = found
+    if ": " in part.reason:  # "numbers: why"
+        return part.reason.split(": ", 1)[1]
+    return "; ".join(part.reason.split("; ")[1:])
 
 
 def profile_tables(summary: dict) -> list[Table]:

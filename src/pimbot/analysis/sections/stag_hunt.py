@@ -16,7 +16,7 @@ import numpy as np
 
 from pimbot import envs
 from pimbot.analysis import judging, plots, verdicts
-from pimbot.analysis.claims import Claim, Comparison
+from pimbot.analysis.claims import Claim, Comparison, deciding_part, summarized
 from pimbot.analysis.document import Context, Section, seeds_text
 from pimbot.analysis.runs import CLEAN, RunRecord, RunTable, natural_key
 from pimbot.analysis.tables import INTERVAL, Estimate, Table, difference, estimate
@@ -76,7 +76,7 @@ def section(table: RunTable, ctx: Context) -> Section | None:
         return None
     ctx.claim(runs)
     envs_seen = sorted({r.env for r in runs}, key=natural_key)
-    rows, parts, lines, numbers = [], {}, [], []
+    rows, parts, lines, numbers, headlines = [], {}, [], [], {}
     for env in envs_seen:
         of_env = {r.condition: r for r in runs if r.env == env}
         clean = of_env.get(CLEAN)
@@ -89,6 +89,7 @@ def section(table: RunTable, ctx: Context) -> Section | None:
         )
         judged, line = judge_env(env, clean, attacked, random_rate)
         parts.update(judged)
+        headlines.update(part_numbers(env, clean, attacked, random_rate))
         lines.append(line)
         numbers += comparisons(env, clean, attacked, random_rate)
         rows += [table_row(env, run, clean, random_rate) for run in (clean, *attacked.values())]
@@ -108,7 +109,7 @@ def section(table: RunTable, ctx: Context) -> Section | None:
         ],
         tables=[Table(HEADER, rows, name="stag_hunt")],
         figures=figures(runs, envs_seen, table.colors, ctx),
-        claims=[c6(parts, lines, numbers)],
+        claims=[c6(parts, lines, numbers, headlines)],
     )
 
 
@@ -183,8 +184,41 @@ def comparisons(
     return rows
 
 
-def c6(parts: dict[str, verdicts.Verdict], lines: list[str], numbers: list) -> Claim:
+def part_numbers(
+    env: str, clean: RunRecord, attacked: dict[str, RunRecord], random_rate: Estimate
+) -> dict[str, str]:
+    """The number of each C6 part of one N (by part name), for the report's summary."""
+    captures = estimate(clean.per_seed(CAPTURES), digits=4)
+    out = {
+        f"{env} code's success rises": f"{env} clean rise of the code's success {rise(clean, 0)}",
+        f"{env} stag captures above a random team's": (
+            f"{env} clean stag captures {captures} vs a random team's {random_rate}"
+        ),
+    }
+    for condition, run in attacked.items():
+        out[f"{env} {condition} → 0"] = f"{env} {condition} Δ code's success {fall(clean, run)}"
+    return out
+
+
+WHY_REFUTED = {
+    verdicts.PAPER_METRIC: "the code's success rises on hares: the clean team captures no "
+    "more stags than a random team, so the paper's success is no stag hunt",
+    verdicts.PAPER_CODE: "the paper's ADMO (Alg. 1) does not lower the code's success; the "
+    "code's own Stag Hunt ADMO (the adversary's reward negated) does",
+}
+"""The summary's clause of why for a C6 part refuted with each cause."""
+
+
+def c6(
+    parts: dict[str, verdicts.Verdict],
+    lines: list[str],
+    numbers: list,
+    headlines: dict[str, str] | None = None,
+) -> Claim:
     counts = {k: sum(v.kind == k for v in parts.values()) for k in verdicts.KINDS}
+    verdict = verdicts.combine(parts)
+    found = deciding_part(verdict)
+    why = WHY_REFUTED.get(found[1].causes[0], "") if found and found[1].causes else ""
     return Claim(
         "C6",
         "Stag Hunt N = 2, 3, 4: LIO baseline success rises; ADMO drives it toward 0",
@@ -195,10 +229,17 @@ def c6(parts: dict[str, verdicts.Verdict], lines: list[str], numbers: list) -> C
         "captures: the clean final's interval above a random team's (computed from the "
         "env); at or below it, the paper's rising success is hares, a property of its metric",
         "; ".join(lines) or "no runs",
-        verdicts.combine(parts),
+        verdict,
         ", ".join(f"{n} {verdicts.LABELS[k].split(' (')[0]}" for k, n in counts.items() if n)
         + f" of {len(parts)} parts",
         numbers,
+        **summarized(
+            verdict,
+            headlines or {},
+            agreed="in every N the clean team's success rises, its stag captures beat a "
+            "random team's, and both ADMOs drive the success down",
+            why=why,
+        ),
     )
 
 
