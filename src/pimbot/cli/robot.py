@@ -302,7 +302,7 @@ def cmd_serve(args) -> int:
             audit.close()
     summary = report.summary()
     if report.ended != "done":
-        print(f"serve: ended early ({report.ended}): {report.problem}")
+        print(f"serve: ended early ({report.ended}), the robots stopped")  # why: the stop line
     else:
         outcome = "success" if report.success else "no success"
         print(f"serve: {summary['steps']} decision steps, {outcome}; actions {report.actions}")

@@ -572,7 +572,7 @@ def serve_episode(
     except BaseException as error:
         ended = _ending(error)
         problem = str(error).splitlines()[0] if str(error) else ended
-        ends.stop(problem if ended != "error" else f"error: {problem}")
+        ends.stop(problem if ended != "error" else f"error: {type(error).__name__}: {problem}")
         report = played.report(ends, time.perf_counter() - start, ended, problem)
         _finish(ends, report, episode, audit)
         if isinstance(error, WireTimeout | SecondController):
