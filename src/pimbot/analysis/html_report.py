@@ -8,7 +8,7 @@ import html
 from importlib import resources
 from pathlib import Path
 
-from pimbot.analysis import layout
+from pimbot.analysis import layout, summary
 from pimbot.analysis.claims import Claim
 from pimbot.analysis.document import Report, Section
 from pimbot.analysis.tables import Table, html_table
@@ -101,13 +101,18 @@ def summary_html(report: Report, anchor: str) -> str:
             f"<tr><td class='id'><a href='#{line.anchor}'>{html.escape(line.id)}</a>"
             f"<span class='claim'>{html.escape(line.claim)}</span></td>"
             f"<td class='verdict {line.kind}'>{html.escape(line.verdict)}</td>"
-            f"<td class='number'>{html.escape(line.headline)}</td>"
+            f"<td class='number'>{unbroken(html.escape(line.headline))}</td>"
             f"<td class='why'>{html.escape(line.why)}</td>{beside}</tr>"
         )
     return (
         f"<h2 id='{anchor}'>{layout.SUMMARY}</h2><table class='summary'><tr>{head}</tr>"
         f"{''.join(rows)}</table><p class='legend'>{html.escape(layout.SUMMARY_NOTE)}</p>"
     )
+
+
+def unbroken(text: str) -> str:
+    """Each number with its interval in `text` kept on one line."""
+    return summary.NUMBER.sub(lambda m: f"<span class='n'>{m.group(0)}</span>", text)
 
 
 def details_link(claim: Claim) -> str:

@@ -7,9 +7,12 @@ tables, figures and the claims it can judge, and the generic provider reports
 every run no paper section read. The claims table (analysis.claims) marks a claim
 whose runs are not all finished "not run" whatever its partial numbers say.
 
-The report opens with its provenance (versions, commit, backend and devices
-from the runs' config.json files, the budget of every group read from the runs,
-the generation date) and a table of contents. Every figure is a PNG with an SVG
+A report of the paper's suite opens with its verdicts: a summary of one line per
+claim row (analysis.summary), the table of contents, the claims table and every
+claim's details; then its provenance (versions, commit, backend and devices from
+the runs' config.json files, the budget of every group read from the runs, the
+generation date) and the sections. A sweep's report opens with the contents and
+the provenance. Every figure is a PNG with an SVG
 beside it; a figure without data is not written. The renderers are
 analysis.markdown_report and analysis.html_report (which embeds every PNG as a
 data URI, so the one file can be mailed or archived).
