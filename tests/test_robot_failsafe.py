@@ -407,10 +407,15 @@ def test_serve_refuses_a_layout_that_is_no_room_in_one_line(run_dir, tmp_path):
             "the lever and start zones overlap",
         ),
         "deep": ("[" * 1000, "nested too deep"),
+        "binary": (b"\xff\xfe\x00junk", "not UTF-8 text"),
+        "huge": (" " * 70_000, "larger than 65536 bytes"),
     }
     for name, (layout, expected) in cases.items():
         path = tmp_path / f"{name}.json"
-        path.write_text(layout if isinstance(layout, str) else json.dumps(layout))
+        if isinstance(layout, bytes):
+            path.write_bytes(layout)
+        else:
+            path.write_text(layout if isinstance(layout, str) else json.dumps(layout))
         done = subprocess.run(
             [sys.executable, "-m", "pimbot.cli", "robot", "serve", str(run_dir),
              "--layout", str(path), "--domain-id", str(_domain(11))],

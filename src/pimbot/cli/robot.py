@@ -261,12 +261,7 @@ def cmd_serve(args) -> int:
     from pimbot.robot.ros_world import WireConfig, layout_from_json
 
     wire = WireConfig(args.ros_distro, args.domain_id)
-    layout = None
-    if args.layout:
-        try:
-            layout = layout_from_json(Path(args.layout).read_text())
-        except OSError as error:
-            raise InvalidParameter(f"layout: {args.layout}: {error.strerror}") from None
+    layout = layout_from_json(_read_layout(args.layout)) if args.layout else None
     loaded = evaluate.load_run(run_dir)
     if args.seed_index >= len(loaded.seeds):
         raise InvalidParameter(
@@ -278,7 +273,15 @@ def cmd_serve(args) -> int:
         loaded.resolved, **evaluate.parse_physics_overrides(list(args.physics))
     )
     audit = _audit_log(args, run_dir)
-    policy = serve.trained_policy(loaded, args.seed_index)
+    try:
+        policy = serve.trained_policy(loaded, args.seed_index)
+    except KeyboardInterrupt as interrupt:  # compiling: no robot was driven yet
+        from pimbot.cli import Terminated
+
+        if audit is not None:
+            audit.close()
+        print("serve: interrupted before any robot was driven")
+        return 143 if isinstance(interrupt, Terminated) else 130
     label = evaluate.run_label(loaded.resolved)
     print(
         f"serve: {label}, seed {loaded.seeds[args.seed_index]}, on DDS domain "
@@ -317,6 +320,24 @@ def cmd_serve(args) -> int:
         print(f"serve: {_counters_text(report)}")
     _write_json(args.json, summary)
     return 0 if report.ended == "done" else 1
+
+
+def _read_layout(path: str) -> str:
+    """A layout file's text, read within the JSON bound (one line if it is not text)."""
+    from pimbot.envs.core import InvalidParameter
+    from pimbot.robot.ros_wire import MAX_JSON_BYTES
+
+    try:
+        with open(path, "rb") as file:
+            data = file.read(MAX_JSON_BYTES + 1)
+    except OSError as error:
+        raise InvalidParameter(f"layout: {path}: {error.strerror}") from None
+    if len(data) > MAX_JSON_BYTES:
+        raise InvalidParameter(f"layout: {path}: larger than {MAX_JSON_BYTES} bytes")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise InvalidParameter(f"layout: {path}: not UTF-8 text") from None
 
 
 def _counters_text(report) -> str:
