@@ -150,7 +150,7 @@ class ServeReport:
     """Seconds of the robots' clock (odometry stamps) from the first odometry to the end."""
     wall_s: float
     ended: str = "done"
-    """done, interrupted, no odometry, second controller or error."""
+    """done, no room, no odometry, second controller, interrupted, terminated or error."""
     problem: str | None = None
     """The line that ended it early (None when done)."""
     dropped: dict[str, dict[str, int]] = dataclasses.field(default_factory=dict)
@@ -239,11 +239,10 @@ def _incentive_parser(n: int, recipient: int, authenticated: bool) -> Callable:
             raise Dropped("out of range", f"giver {incentive.giver}, robots 0 to {n - 1}")
         if incentive.recipient != recipient:
             raise Dropped("out of range", f"recipient {incentive.recipient} on robot {recipient}")
-        if (
-            abs(incentive.value) > MAX_INCENTIVE
-            or max(incentive.episode, incentive.step, incentive.sequence) >= 2**63
-        ):
-            raise Dropped("out of range", f"value {incentive.value:g}")
+        if abs(incentive.value) > MAX_INCENTIVE:
+            raise Dropped("out of range", f"value {incentive.value:g}, at most {MAX_INCENTIVE:g}")
+        if max(incentive.episode, incentive.step, incentive.sequence) >= 2**63:
+            raise Dropped("out of range", "episode, step or sequence beyond 64 bits")
         return incentive
 
     return parse
