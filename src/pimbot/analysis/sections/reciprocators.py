@@ -6,7 +6,7 @@ import dataclasses
 
 from pimbot import envs, learners
 from pimbot.analysis import judging, plots, verdicts
-from pimbot.analysis.claims import CLAIM_TEXT, Claim, Comparison
+from pimbot.analysis.claims import CLAIM_TEXT, Claim, Comparison, summarized
 from pimbot.analysis.document import Context, Section, seeds_text
 from pimbot.analysis.runs import CLEAN, RunRecord, RunTable, condition_key, natural_key
 from pimbot.analysis.tables import INTERVAL, Table, difference, estimate
@@ -223,7 +223,7 @@ def c7(runs: list[RunRecord]) -> Claim:
     one episode per update where it ran), never the best of several runs. A shortfall at the
     defaults is the paper's environment where the transfer counterfactual solves the room;
     otherwise, as every disagreement without an original-code log, inconclusive."""
-    parts, lines, numbers = {}, [], []
+    parts, lines, numbers, headlines = {}, [], [], {}
     for env in C7_ENVS:
         clean, admo = primary(runs, env, CLEAN), primary(runs, env, ATTACKED)
         if clean is not None and admo is not None:
@@ -241,12 +241,17 @@ def c7(runs: list[RunRecord]) -> Claim:
             )
             reached = judging.above(base, BASELINE, "clean")
             parts[f"{env} baseline"] = reached or baseline_shortfall(runs, clean, base)
+            headlines[f"{env} baseline"] = f"{env} clean {base}"
             if env in C7_TARGETS:
                 parts[f"{env} ADMO"] = admo_part(base, reached is None, attacked, C7_TARGETS[env])
+                headlines[f"{env} ADMO"] = f"{env} clean {base} → ADMO {attacked}"
         for run in code_batch_runs(runs, env):
             name = f"{env} baseline, {CODE_BATCH}"
-            parts[name if name not in parts else f"{name} ({run.setting})"] = code_batch_part(run)
+            name = name if name not in parts else f"{name} ({run.setting})"
+            parts[name] = code_batch_part(run)
+            headlines[name] = f"{env} clean {estimate(run.per_seed('eval/success'))}, batch of one"
     counts = {k: sum(v.kind == k for v in parts.values()) for k in verdicts.KINDS}
+    verdict = verdicts.combine(parts)
     return Claim(
         "C7",
         CLAIM_TEXT["C7"],
@@ -258,10 +263,15 @@ def c7(runs: list[RunRecord]) -> Claim:
         f"setting judged on its own runs (pimbot's defaults; ER also at {CODE_BATCH}); an ER "
         "shortfall at the defaults is classified by the transfer counterfactual",
         "; ".join((["clean → ADMO: " + "; ".join(lines)] if lines else []) + [_parts_text(parts)]),
-        verdicts.combine(parts),
+        verdict,
         ", ".join(f"{n} {verdicts.LABELS[k].split(' (')[0]}" for k, n in counts.items() if n)
         + f" of {len(parts)} parts",
         numbers,
+        **summarized(
+            verdict,
+            headlines,
+            agreed="every setting's clean baseline reaches 0.8 and ADMO stays below its bound",
+        ),
     )
 
 
