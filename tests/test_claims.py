@@ -692,3 +692,19 @@ def test_c7_stag_hunt_rows_show_the_logged_stag_captures(tmp_path):
     rows = {row["env"]: row for row in reciprocators.results_rows([stag, room])}
     assert rows["SH(2)"]["stag_captures"].mean == pytest.approx(0.02)  # seeds 0..4
     assert rows["ER(2,1)"]["stag_captures"] is None
+
+
+def test_coverage_counts_a_renamed_job_under_its_former_name():
+    """A suite directory made before the Escape Room Reciprocator rows were renamed
+    (rec_er*_spec → rec_er*, rec_er* → rec_er*_petty) still has every C7 job finished; one
+    without a finished run under either name does not."""
+    from pimbot.analysis.claims import claim_coverage
+    from pimbot.suites import presets
+
+    old_names = {presets.FORMER_JOB_NAMES.get(j.name, j.name) for j in presets.suite(quick=True)}
+    index = {"suite": "quick", "jobs": [{"name": n, "status": "finished"} for n in old_names]}
+    done, planned = claim_coverage(index)["C7"]
+    assert done == planned > 0
+    missing = "reciprocators/rec_er42_admo_disrupt"  # the former petty row
+    index["jobs"] = [j for j in index["jobs"] if j["name"] != missing]
+    assert claim_coverage(index)["C7"] == (planned - 1, planned)

@@ -123,14 +123,17 @@ def is_paper_suite(index: dict) -> bool:
 def claim_coverage(index: dict) -> dict[str, tuple[int, int]]:
     """(finished, planned) jobs per claim: the whole suite of the index's budget counts, so
     a directory where `--only` ran part of it is not judged on that part. The suite is
-    planned here, once per report (`presets.suite`)."""
+    planned here, once per report (`presets.suite`); a job renamed since counts under its
+    former name too (`presets.FORMER_JOB_NAMES`)."""
     status = {job["name"]: job["status"] for job in index.get("jobs", [])}
     coverage: dict[str, list[int]] = {c: [0, 0] for c in CLAIM_TEXT}
     for job in presets.suite(quick=is_quick(index)):
+        former = presets.FORMER_JOB_NAMES.get(job.name)
+        finished = "finished" in (status.get(job.name), status.get(former))
         for claim in job.claims:
             coverage.setdefault(claim, [0, 0])
             coverage[claim][1] += 1
-            coverage[claim][0] += status.get(job.name) == "finished"
+            coverage[claim][0] += finished
     return {c: (done, planned) for c, (done, planned) in coverage.items()}
 
 

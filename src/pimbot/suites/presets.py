@@ -485,6 +485,24 @@ GROUPS = {
 """Suite groups in run order; each maps a Scale to its jobs."""
 
 
+def _former_reciprocator_names() -> dict[str, str]:
+    """The Escape Room Reciprocator jobs renamed on 2026-12-07 (0.2.0), when the default
+    balance became credit − debit: `rec_erNM_*` was `rec_erNM_spec_*`, and the script's
+    petty rows `rec_erNM_petty_*` were `rec_erNM_*`."""
+    former = {}
+    for room in ("er21", "er42", "er43"):
+        for condition in ("clean", "admo_disrupt"):
+            former[f"rec_{room}_{condition}"] = f"rec_{room}_spec_{condition}"
+            former[f"rec_{room}_petty_{condition}"] = f"rec_{room}_{condition}"
+    return {f"reciprocators/{new}": f"reciprocators/{old}" for new, old in former.items()}
+
+
+FORMER_JOB_NAMES = _former_reciprocator_names()
+"""A job's name in suites made before it was renamed (new name → former name), so that a
+report still counts the finished jobs of an older suite directory; the runs themselves
+are read by what their config.json records, never by their name."""
+
+
 def suite(quick: bool = False) -> list[Job]:
     """Every job of the paper's suite, at the published budget or the quick one."""
     scale = QUICK if quick else FULL
