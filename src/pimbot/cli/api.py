@@ -211,7 +211,8 @@ class PolicyOutput(NamedTuple):
 @dataclasses.dataclass(frozen=True)
 class Policy:
     """One agent's trained policy (one seed): `policy(obs, key=None)` -> (probabilities,
-    actions) for observations [obs_dim] or [B, obs_dim] (NumPy or JAX arrays)."""
+    actions) for observations [obs_dim] or [B, obs_dim] (NumPy or JAX arrays). One
+    compiled program per shape of `obs`, with and without a key."""
 
     agent: int
     seed: int
@@ -219,23 +220,41 @@ class Policy:
     obs_dim: int
     logits_fn: Callable[[Any], Any] = dataclasses.field(repr=False)
 
-    def logits(self, obs) -> Any:
-        """The action logits [..., num_actions] of observations [..., obs_dim]."""
-        import jax.numpy as jnp
+    @functools.cached_property
+    def _programs(self) -> dict[bool, Callable]:
+        import jax
+
+        def program(obs, key, sample: bool):
+            logits = self.logits_fn(obs)
+            actions = jax.random.categorical(key, logits) if sample else logits.argmax(-1)
+            return logits, jax.nn.softmax(logits, axis=-1), actions.astype("int32")
+
+        return {
+            sample: jax.jit(functools.partial(program, sample=sample)) for sample in (False, True)
+        }
+
+    def _run(self, obs, key) -> tuple[Any, Any, Any]:
+        import jax
 
         obs = _observations(obs, self.obs_dim)
         flat = obs.reshape((-1, self.obs_dim))
-        return jnp.reshape(self.logits_fn(flat), (*obs.shape[:-1], self.num_actions))
+        sample = key is not None
+        outputs = self._programs[sample](flat, key if sample else jax.random.key(0))
+        lead = obs.shape[:-1]
+        logits, probabilities, actions = outputs
+        return (
+            logits.reshape((*lead, self.num_actions)),
+            probabilities.reshape((*lead, self.num_actions)),
+            actions.reshape(lead),
+        )
+
+    def logits(self, obs) -> Any:
+        """The action logits [..., num_actions] of observations [..., obs_dim]."""
+        return self._run(obs, None)[0]
 
     def __call__(self, obs, key=None) -> PolicyOutput:
-        import jax
-
-        logits = self.logits(obs)
-        if key is None:
-            actions = logits.argmax(axis=-1)
-        else:
-            actions = jax.random.categorical(key, logits, axis=-1)
-        return PolicyOutput(jax.nn.softmax(logits, axis=-1), actions.astype("int32"))
+        _, probabilities, actions = self._run(obs, key)
+        return PolicyOutput(probabilities, actions)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -249,21 +268,26 @@ class Incentive:
     obs_dim: int
     give_fn: Callable[[Any, Any], Any] = dataclasses.field(repr=False)
 
+    @functools.cached_property
+    def _program(self) -> Callable:
+        import jax
+
+        return jax.jit(self.give_fn)
+
     def __call__(self, obs, actions) -> Any:
         """obs [..., obs_dim] (the giver's), actions int [..., N] (everyone's)."""
         import jax.numpy as jnp
 
         obs = _observations(obs, self.obs_dim)
         actions = jnp.asarray(actions, jnp.int32)
-        if actions.shape != (*obs.shape[:-1], self.num_agents):
+        lead = obs.shape[:-1]
+        if actions.shape != (*lead, self.num_agents):
             raise InvalidParameter(
-                f"actions: must have shape {(*obs.shape[:-1], self.num_agents)} (one action "
+                f"actions: must have shape {(*lead, self.num_agents)} (one action "
                 f"per agent for each observation), got {actions.shape}"
             )
-        given = self.give_fn(
-            obs.reshape((-1, self.obs_dim)), actions.reshape((-1, self.num_agents))
-        )
-        return jnp.reshape(given, (*obs.shape[:-1], self.num_agents))
+        flat = obs.reshape((-1, self.obs_dim)), actions.reshape((-1, self.num_agents))
+        return self._program(*flat).reshape((*lead, self.num_agents))
 
 
 def _observations(obs, obs_dim: int):
