@@ -128,6 +128,20 @@ def test_bad_keywords_are_one_line_before_anything_is_written(tmp_path, options,
     assert not out.exists()
 
 
+def test_load_run_loads_the_plugins_a_run_was_made_with(run_dir):
+    """In a process of its own: a plugin loaded here would move this worker's later
+    programs to another compilation cache folder."""
+    plugin = Path(__file__).resolve().parents[1] / "examples" / "plugins" / "tiny_env.py"
+    code = (
+        "import pimbot\n"
+        "from pimbot import envs\n"
+        f"pimbot.load_run({str(run_dir)!r}, plugins=[{str(plugin)!r}])\n"
+        "print('public_goods_game-v0' in envs.registered())\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.stdout.strip() == "True", done.stderr
+
+
 def test_bad_run_and_suite_directories_are_one_line(tmp_path):
     with pytest.raises(InvalidParameter, match="is not a pimbot run"):
         pimbot.load_run(tmp_path)

@@ -401,14 +401,21 @@ class Run:
         )
 
 
-def load_run(run_dir: str | Path) -> Run:
+def load_run(run_dir: str | Path, *, plugins: tuple[str, ...] | list[str] = ()) -> Run:
     """The run in `run_dir`: its config, summary, metrics, policies and incentives.
+
+    `plugins` (files or modules, as --plugin) are loaded first: those a plugin's run was
+    made with (config.json, "plugins"), for its policies.
 
     Raises:
         InvalidParameter: not a pimbot run directory (one line).
+        PluginError: a plugin that does not load (one line).
     """
+    from pimbot import plugins as loader
     from pimbot.training import store
 
+    if plugins:
+        loader.load_plugins(list(plugins))
     run_dir = Path(run_dir)
     config_path = run_dir / store.CONFIG
     if not config_path.is_file():
