@@ -14,6 +14,7 @@ from pimbot import attacks, envs, learners
 from pimbot.attacks import admo
 from pimbot.contracts.attack import Decision
 from pimbot.contracts.rollout import received, rollout
+from pimbot.errors import InvalidParameter
 from pimbot.learners import lio, pg
 
 ENV = envs.make("escape_room-v0", n_agents=3, min_at_lever=1)
@@ -427,3 +428,31 @@ def test_admo_code_needs_an_incentive_channel_or_an_epoch_schedule():
     for learner in ("lio", "reciprocator", "nl"):
         resolved = resolve(RunConfig("escape_room-v0", learner=learner, attack="admo_code"))
         assert resolved.attack.name == "admo_code"
+
+
+@pytest.mark.parametrize("name", ["admo", "admo_code", "negated_env_reward"])
+@pytest.mark.parametrize("missing", ["emitted", "meta_pullback"])
+def test_an_incentive_channel_without_its_pullback_is_refused_at_trace(name, missing):
+    """The AdversaryView contract, as the attacks that train η_a read it: `emitted` and
+    `meta_pullback` are None exactly when `incentive` is. A learner's view that sets
+    `incentive` without one of them is refused in one line (InvalidParameter, which the
+    command line prints as such) when the attack's step is traced, before any iteration."""
+    attack = attacks.make(name, 3, adversary=1)
+
+    def step(key):
+        k0, k1, k2 = jax.random.split(key, 3)
+        state = lio.init(k0, ENV, CFG, attack)
+        give = lio.give_fn(IM, state.incentive, ENV.num_actions, CFG.incentive_max)
+        traj = rollout(ENV, k1, pg.act_fn(PM, state.policy, 0.1), give, attack)
+        pullbacks = lio.recipient_pullbacks(
+            ENV, CFG, state.policy, state.incentive, traj, 0.1, traj
+        )
+        theirs = lio.giver_cotangents(ENV, CFG, traj)[jnp.array([0, 2])]
+        view, _ = lio.adversary_view(
+            ENV, CFG, attack, state, pullbacks, state.policy, traj, traj, 0.0, 0.1, theirs
+        )
+        view = dataclasses.replace(view, **{missing: None})
+        return attack.adversary_step(state.attack_state, k2, view)
+
+    with pytest.raises(InvalidParameter, match=f"sets `incentive` without `{missing}`"):
+        jax.eval_shape(step, jax.random.PRNGKey(0))

@@ -398,3 +398,14 @@ def test_checked_hooks_return_the_plugins_values_unchanged():
     for got, want in zip(checked, unchecked, strict=True):
         assert (got == want).all()
     assert type(attacks.make("admo", 2)).init_state is not attack_contract.Attack.init_state
+
+
+def test_a_learner_with_an_incentive_channel_must_consult_emit():
+    """`has_incentives` is read: its rollouts pass `give`, so `emit` acts on what it pays;
+    a learner declaring the channel without the hook is refused at registration."""
+    lio = learners.get("lio")
+    hooks = tuple(h for h in lio.attack_hooks if h != "emit")
+    silent = dataclasses.replace(lio, name="contract_lio", attack_hooks=hooks)
+    with pytest.raises(InvalidParameter, match=r"^attack_hooks: learner contract_lio declares"):
+        learner_contract.register(silent)
+    assert "contract_lio" not in learners.registered()

@@ -38,7 +38,7 @@ from flax import struct
 from jax.flatten_util import ravel_pytree
 
 from pimbot.attacks.signed_modes import TracedSign, with_traced_sign
-from pimbot.contracts.attack import AdversaryView, AgentParams, Attack
+from pimbot.contracts.attack import AdversaryView, AgentParams, Attack, incentive_channel
 from pimbot.contracts.params import check_int, check_number
 from pimbot.contracts.rollout import discounted_returns, received
 from pimbot.envs.core import InvalidParameter
@@ -326,7 +326,7 @@ def step(attack: ADMO, state: ADMOState, view: AdversaryView):
     """
     a = attack.adversary
     n = view.env_rewards.shape[-1]
-    channel = view.incentive is not None
+    channel = incentive_channel(view, attack.name)
     theta_a = jax.tree.map(lambda x: x[a], view.policy)
     eta_a = jax.tree.map(lambda x: x[a], view.incentive) if channel else {}
     valid = view.valid.astype(jnp.float32)

@@ -73,7 +73,14 @@ import optax
 from flax import struct
 
 from pimbot.attacks.signed_modes import TracedSign, with_traced_sign
-from pimbot.contracts.attack import AdversaryView, AgentParams, Attack, UpdateSchedule, agent_row
+from pimbot.contracts.attack import (
+    AdversaryView,
+    AgentParams,
+    Attack,
+    UpdateSchedule,
+    agent_row,
+    incentive_channel,
+)
 from pimbot.contracts.params import check_int, check_number
 from pimbot.contracts.rollout import discounted_returns, received
 from pimbot.envs.core import InvalidParameter
@@ -190,7 +197,7 @@ class ADMOCode(Attack):
 
     def adversary_step(self, state, key, view):
         del key
-        if view.incentive is None:  # the Reciprocator: PPO took the scheduled step
+        if not incentive_channel(view, self.name):  # the Reciprocator: PPO took the step
             return AgentParams(agent_row(view.policy, self.adversary), {}), state, {}
         return step(self, state, view)
 

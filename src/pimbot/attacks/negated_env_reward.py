@@ -41,7 +41,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from pimbot.contracts.attack import AdversaryView, AgentParams, Attack, agent_row
+from pimbot.contracts.attack import AdversaryView, AgentParams, Attack, agent_row, incentive_channel
 from pimbot.contracts.params import check_number
 from pimbot.contracts.rollout import discounted_returns
 
@@ -92,7 +92,7 @@ class NegatedEnvReward(Attack):
     def adversary_step(self, state, key, view: AdversaryView):
         del key
         theta_a = agent_row(view.policy, self.adversary)  # its ordinary step on −r_env
-        if view.incentive is None:
+        if not incentive_channel(view, self.name):
             return AgentParams(theta_a, {}), state, {}
         eta_a, state = incentive_step(self, state, view)
         return AgentParams(theta_a, eta_a), state, {}

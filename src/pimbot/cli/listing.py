@@ -32,6 +32,7 @@ def print_learners() -> int:
     for name in learners.registered():
         definition = learners.get(name)
         print(f"{name}: {definition.description}")
+        print(f"    incentive channel: {'yes' if definition.has_incentives else 'no'}")
         print(f"    attack hooks: {', '.join(definition.attack_hooks) or 'none'}")
         print(f"    defense hooks: {', '.join(definition.defense_hooks) or 'none'}")
         base = dataclasses.replace(definition.config_cls(), **dict(definition.base_overrides))

@@ -98,7 +98,9 @@ class AdversaryView:
     policy: Any
     """Stacked policy parameters of every agent, leaves [N, ...]."""
     incentive: Any
-    """Stacked incentive parameters [N, ...]; None without an incentive channel."""
+    """Stacked incentive parameters [N, ...]; None without an incentive channel. Where it is
+    set, `emitted` and `meta_pullback` must be too: an attack that trains the adversary's
+    incentives reads all three (`incentive_channel`)."""
     log_probs: Callable[[Any], jax.Array]
     """θ_a -> [B..., T] log-probability of the adversary's actions on the judged batch,
     as it played them, zero on invalid steps."""
@@ -109,14 +111,14 @@ class AdversaryView:
     emitted: Callable[[Any], jax.Array] | None
     """η_a (the adversary's own incentive parameters) -> [B..., T, N, N] incentives emitted
     on the judged batch, as emitted: the adversary's row recomputed from η_a
-    (differentiable), the other givers' as they gave them; None without an incentive
-    channel."""
+    (differentiable), the other givers' as they gave them; None exactly when `incentive`
+    is."""
     meta_pullback: Callable[[jax.Array], Any] | None
     """Cotangents [K, T, N] on the recipients' log-probabilities on the judged batch ->
     [K, ...] their gradients w.r.t. η_a through the recipients' updates from the incentives
     the adversary gave (LIO's second-order path). Batched over K: call it once, not under
     vmap (the learner may pull its own givers' cotangents back in the same pass); None
-    where the learner has none."""
+    exactly when `incentive` is."""
     received: jax.Array
     """[B'..., T] the signal the adversary received per step (incentives, or the
     influence others exert on it), on the batch it learnt from."""
@@ -129,6 +131,28 @@ class AdversaryView:
     """[] team success of the iteration."""
     gamma: float
     iteration: jax.Array
+
+
+def incentive_channel(view: AdversaryView, attack: str) -> bool:
+    """Whether the learner showed `attack` an incentive channel (`view.incentive` set),
+    checked at trace time, before any iteration runs: with one, `emitted` and
+    `meta_pullback` must be set too, since the attack trains the adversary's incentives
+    through the recipients' updates.
+
+    Raises:
+        InvalidParameter: naming the missing fields of the learner's view.
+    """
+    if view.incentive is None:
+        return False
+    missing = [name for name in ("emitted", "meta_pullback") if getattr(view, name) is None]
+    if missing:
+        raise InvalidParameter(
+            f"attack: {attack} trains the adversary's incentives through the recipients' "
+            f"updates, but the learner's AdversaryView sets `incentive` without "
+            f"{' and '.join(f'`{m}`' for m in missing)} (pimbot.contracts.attack.AdversaryView; "
+            "docs/extending.md)"
+        )
+    return True
 
 
 @dataclasses.dataclass(frozen=True)

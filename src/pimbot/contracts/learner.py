@@ -61,9 +61,20 @@ stacked `policy` [N, ...] (the adversary's row is θ_a, as `init_state` was give
 `env_rewards` [B..., T, N], `valid`, `received` / `received_valid` (zeros without a
 channel), `success`, `gamma`, `iteration`. Without an incentive channel `incentive`,
 `emitted` and `meta_pullback` are None and `emission_scales` is (): ADMO then trains θ_a
-alone. With one, `incentive` is the stacked η, `emitted(η_a)` the batch's incentives
-recomputed from η_a, and `meta_pullback` the gradient through the recipients' updates
-(LIO's, `pimbot.learners.lio`); ADMO's budget acts at `emit` where the learner has it.
+alone. With one, all three are set: `incentive` is the stacked η, `emitted(η_a)` the
+batch's incentives recomputed from η_a, and `meta_pullback` the gradient through the
+recipients' updates (LIO's, `pimbot.learners.lio`); a view that sets `incentive` without
+the other two is refused in one line when the attack's step is traced, before any
+iteration (`pimbot.contracts.attack.incentive_channel`: ADMO, admo_code and the Stag
+Hunt's negated reward read them). ADMO's budget acts at `emit` where the learner has it.
+
+**Incentive channel** (`LearnerDef.has_incentives`): a learner whose rollouts pass a
+`give` function declares it, and must then list `emit` among its `attack_hooks` (refused
+at registration otherwise). `give` gets no PRNG key: incentives must be a deterministic
+function of (obs, actions) given the learner's parameters, because a learning attack and
+LIO's meta-gradient recompute them on the batch as played; a stochastic incentive draws
+its noise from the learner's key before the rollout and closes `give` over it
+(`pimbot.contracts.rollout.GiveFn`).
 
 **Evaluation**: `evaluate` plays `episodes` episodes at ε = 0 through `rollout`, the
 attack acting as in training, and returns `episode_metrics` of each ([episodes] or
@@ -134,7 +145,8 @@ class LearnerDef:
     with a defense acting elsewhere is refused naming the hook."""
     has_incentives: bool = False
     """Whether the learner has an incentive channel (agents pay each other rewards, passed
-    to `rollout` as `give`; it then consults `emit`)."""
+    to `rollout` as `give`). It must then list `emit` in `attack_hooks` (checked at
+    registration); `pimbot learners` shows it."""
     base_overrides: tuple[tuple[str, Any], ...] = ()
     """Changes to `config_cls()` that make this learner (e.g. `nl`: reciprocal weight 0),
     applied after the per-env defaults."""
@@ -207,6 +219,11 @@ def register(definition: LearnerDef, *, replace: bool = False) -> LearnerDef:
         raise TypeError(f"learners register a LearnerDef, got {definition!r}")
     where = f"at {conformance.caller_location()}"
     _check_hook_names(definition, where)
+    if definition.has_incentives and "emit" not in definition.attack_hooks:
+        raise conformance.ContractError(
+            f"attack_hooks: learner {definition.name} declares has_incentives, so its rollouts "
+            f"consult `emit`: list it (declared {where})"
+        )
     check_hparams(definition, dict(definition.base_overrides), "base_overrides", where)
     for env_id, values in definition.env_defaults.items():
         check_hparams(definition, values, f"{definition.name}'s default on {env_id}", where)

@@ -18,7 +18,13 @@ from pimbot.envs.core import Env, step_metric_names
 
 # act(key, obs [N, obs_dim]) -> actions int32 [N]
 ActFn = Callable[[jax.Array, jax.Array], jax.Array]
-# give(obs [N, obs_dim], actions [N]) -> incentives [N giver, N recipient], zero diagonal
+# give(obs [N, obs_dim], actions [N]) -> incentives [N giver, N recipient], zero diagonal.
+# It gets no key, by contract: a learner that trains its incentives through the
+# recipients' updates recomputes them from its parameters on the batch as played
+# (`AdversaryView.emitted`, LIO's meta-gradient), which only a deterministic function of
+# (obs, actions) allows. A stochastic incentive draws its noise from the learner's own key
+# before the rollout (e.g. per episode, [T, N, N]) and closes `give` over it, so the same
+# noise can be applied again when the incentives are recomputed (docs/extending.md).
 GiveFn = Callable[[jax.Array, jax.Array], jax.Array]
 
 
