@@ -160,9 +160,19 @@ class _DeclaresTracedButIsNoPytree(envs.IteratedPrisonersDilemma):
     traced_fields = ("max_steps",)  # a value in `step`, but no `TracedFields` env
 
 
-def test_check_env_catches_traced_fields_of_an_env_that_is_no_pytree_of_them():
-    with pytest.raises(AssertionError, match=r"traced_fields \('max_steps',\) but it is no pytree"):
+def test_an_env_written_for_0_1_with_traced_fields_but_no_pytree_is_compiled_in():
+    """0.1 let an env declare `traced_fields` without subclassing `TracedFields`: it still
+    passes, with a deprecation warning, and the program closes over it (its numbers are
+    compiled in, so two values never share a program)."""
+    from pimbot.envs.core import program_env
+    from pimbot.moved import PimbotDeprecationWarning
+    from pimbot.training.programs import _env_structure
+
+    with pytest.warns(PimbotDeprecationWarning, match=r"without subclassing .*TracedFields"):
         envs.check_env(_DeclaresTracedButIsNoPytree())
+    assert program_env(_DeclaresTracedButIsNoPytree()) is None
+    five, six = _DeclaresTracedButIsNoPytree(max_steps=5), _DeclaresTracedButIsNoPytree(max_steps=6)
+    assert _env_structure(five) != _env_structure(six)
 
 
 @pytest.mark.parametrize(

@@ -10,13 +10,15 @@ after every `done`) and its `vmap` over a batch of keys.
 from __future__ import annotations
 
 import functools
+import warnings
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from pimbot.envs.core import Env, program_env, step_metric_names, traced_fields
+from pimbot.envs.core import Env, TracedFields, program_env, step_metric_names, traced_fields
+from pimbot.moved import PimbotDeprecationWarning
 
 _PROTOCOL_FLAGS = ("incentive_obs", "stochastic", "terminates_on_success")
 
@@ -112,6 +114,15 @@ def _check_traced_fields(env: Env, key: jax.Array, actions: jax.Array, expected)
     traced) gives the rollout it gives with them compiled in."""
     fields = traced_fields(env)
     if not fields:
+        return
+    if not isinstance(env, TracedFields):  # written for 0.1: compiled in, as it was then
+        warnings.warn(
+            f"{type(env).__name__} declares traced_fields {fields} without subclassing "
+            "pimbot.envs.core.TracedFields: its numbers are compiled in (one program per "
+            "value); subclass TracedFields to share one program (refused from 0.3.0)",
+            PimbotDeprecationWarning,
+            stacklevel=2,
+        )
         return
     argument = program_env(env)
     assert argument is not None and jax.tree.leaves(argument) == [
