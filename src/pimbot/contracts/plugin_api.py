@@ -18,6 +18,7 @@ tests/test_plugin_names.py imports every name of `__all__`.
 from __future__ import annotations
 
 from pimbot import nets
+from pimbot.contracts import learner_kit
 from pimbot.contracts.attack import HOOKS as ATTACK_HOOKS
 from pimbot.contracts.attack import (
     NO_ATTACK,
@@ -62,6 +63,7 @@ from pimbot.contracts.rollout import (
     discounted_returns,
     episode_metrics,
     fill_incentive_obs,
+    received,
     rollout,
 )
 from pimbot.envs import check_env, make
@@ -120,8 +122,10 @@ __all__ = [
     "discounted_returns",
     "episode_metrics",
     "fill_incentive_obs",
+    "learner_kit",
     "nets",
     "program_config",
+    "received",
     "register_learner",
     "rollout",
     "set_env_defaults",
