@@ -18,18 +18,9 @@ import optax
 from flax import struct
 
 from pimbot import nets
-from pimbot.contracts import defense as defense_hooks
-from pimbot.contracts.attack import (
-    NO_ATTACK,
-    AdversaryView,
-    AgentParams,
-    Attack,
-    Outcome,
-    agent_row,
-    attack_key,
-    with_agent_row,
-)
-from pimbot.contracts.defense import NO_DEFENSE, Defenses, EpsilonContext
+from pimbot.contracts import learner_kit as kit
+from pimbot.contracts.attack import NO_ATTACK, Attack, Outcome, attack_key
+from pimbot.contracts.defense import NO_DEFENSE, Defenses
 from pimbot.contracts.learner import Actor
 from pimbot.contracts.rollout import Trajectory, discounted_returns, episode_metrics, rollout
 from pimbot.envs.core import Env, TracedFields
@@ -77,10 +68,14 @@ class PGState:
     env_steps: jax.Array  # int32 [], environment steps taken in training
 
 
-def epsilon_at(iteration: jax.Array, start: float, end: float, decay_iters: int) -> jax.Array:
-    """Linear ε schedule: start → end over `decay_iters` iterations, then constant."""
-    frac = jnp.minimum(iteration / max(decay_iters, 1), 1.0)
-    return jnp.asarray(start + (end - start) * frac, jnp.float32)
+epsilon_at = kit.epsilon_schedule
+"""Linear ε schedule: start → end over `decay_iters` iterations, then constant."""
+act_fn = kit.sampling_act
+"""A rollout `act` function sampling every agent's action from its ε-mixed policy (ε []
+or [N]: an exploration floor on some agents)."""
+evaluate_actor = kit.evaluate_actor
+"""Per-episode metrics of `episodes` episodes of an `Actor`, the attack acting as in
+training (LIO's and the Reciprocator's evaluation too)."""
 
 
 def reinforce_loss(
@@ -135,25 +130,10 @@ def policy_step(
         policy, module, traj.obs, traj.actions, returns, traj.valid, epsilon, entropy_coef
     )
     sign = jnp.broadcast_to(jnp.asarray(sign, jnp.float32), (traj.actions.shape[1],))
-    grads = jax.tree.map(lambda g: g * sign.reshape((-1,) + (1,) * (g.ndim - 1)), grads)
+    grads = kit.per_agent(grads, sign)
     optimizer = optax.sgd(lr)
     updates, _ = optimizer.update(grads, optimizer.init(policy))
     return optax.apply_updates(policy, updates)
-
-
-def act_fn(module: nets.MLP, policy, epsilon: jax.Array):
-    """A rollout `act` function sampling every agent's action from its ε-mixed policy.
-
-    `epsilon`: a scalar, or per agent [N] (an exploration floor on some agents).
-    """
-    if jnp.ndim(epsilon):
-        epsilon = epsilon[:, None]
-
-    def act(key, obs):
-        logits = nets.apply_stacked(module, policy, obs)
-        return jax.random.categorical(key, nets.mixed_log_probs(logits, epsilon))
-
-    return act
 
 
 def init(
@@ -166,16 +146,7 @@ def init(
     module = nets.policy_module(cfg.policy_hidden, env.num_actions)
     init_key, key = jax.random.split(key)
     policy = nets.init_stacked(module, init_key, env.num_agents, env.obs_dim)
-    own = agent_row(policy, attack.adversary)
-    zero = jnp.zeros((), jnp.int32)
-    return PGState(
-        policy=policy,
-        attack_state=attack.init_state(attack_key(key), env.num_agents, AgentParams(own, {})),
-        defense_state=defense_hooks.init_states(defenses, env.num_agents, policy),
-        key=key,
-        iteration=zero,
-        env_steps=zero,
-    )
+    return PGState(policy=policy, **kit.hook_fields(key, env.num_agents, attack, defenses, policy))
 
 
 def update(
@@ -192,9 +163,8 @@ def update(
         state.iteration, cfg.epsilon_start, cfg.epsilon_end, cfg.epsilon_decay_iters
     )
     # 1. exploration (defense hook: acting_epsilon)
-    honest = defense_hooks.honest_agents(attack, env.num_agents)
-    epsilon = defense_hooks.acting_epsilon(
-        defenses, state.defense_state, EpsilonContext(schedule_epsilon, honest)
+    epsilon = kit.acting_epsilon(
+        defenses, state.defense_state, attack, env.num_agents, schedule_epsilon
     )
     # 2. play an episode (attack hooks: act)
     act = act_fn(module, state.policy, epsilon)
@@ -214,15 +184,18 @@ def update(
     success = episode_metrics(env, traj)["success"]
     env_steps = state.env_steps + traj.valid.sum()
     metrics = {"train/epsilon": schedule_epsilon, "train/success": success}
-    # 4. a learning attack replaces the adversary's update (attack hook: adversary_step)
-    attack_state = state.attack_state
-    if "adversary_step" in attack.hooks:
-        view = adversary_view(module, attack, policy, traj, schedule_epsilon, success, cfg, state)
-        own, attack_state, attack_metrics = attack.adversary_step(
-            attack_state, attack_key(state.key), view
+
+    # 4. a learning attack replaces the adversary's update (attack hook: adversary_step);
+    #    it sees the episode just played, at the schedule's ε (it runs no defense)
+    def view():
+        return kit.adversary_view(
+            attack, module, policy, traj, schedule_epsilon, success, cfg.gamma, state.iteration
         )
-        policy = with_agent_row(policy, attack.adversary, own.policy)
-        metrics.update(attack_metrics)
+
+    policy, _, attack_state, attack_metrics = kit.adversary_step(
+        attack, state.attack_state, state.key, view, policy
+    )
+    metrics.update(attack_metrics)
     # 5. the attack's own state (attack hook: observe)
     attack_state = attack.observe(
         attack_state, attack_key(episode_key), Outcome(success, state.iteration, env_steps)
@@ -236,35 +209,6 @@ def update(
         env_steps=env_steps,
     )
     return new_state, metrics
-
-
-def adversary_view(module, attack, policy, traj, epsilon, success, cfg, state) -> AdversaryView:
-    """What a learning attack sees: the episode just played (ω = θ_a, r = env reward; the
-    adversary receives nothing). It runs no defense: its ε is the schedule's."""
-    a = attack.adversary
-
-    def log_probs(theta_a):
-        logits = module.apply(theta_a, traj.obs[:, a])
-        taken = jnp.take_along_axis(
-            nets.mixed_log_probs(logits, epsilon), traj.actions[:, a, None], axis=1
-        )
-        return taken[:, 0] * traj.valid
-
-    return AdversaryView(
-        policy=policy,  # the adversary's row is unchanged: its policy sign is 0
-        incentive=None,
-        log_probs=log_probs,
-        env_rewards=traj.env_rewards,
-        valid=traj.valid,
-        emitted=None,
-        meta_pullback=None,
-        received=jnp.zeros(traj.valid.shape, jnp.float32),
-        received_valid=traj.valid,
-        emission_scales=(),
-        success=success,
-        gamma=cfg.gamma,
-        iteration=state.iteration,
-    )
 
 
 def acting(env: Env, cfg: PGConfig, state: PGState) -> Actor:
@@ -283,14 +227,3 @@ def evaluate(
 ):
     """Per-episode metrics [episodes, ...] of evaluation episodes (ε = 0, actions sampled)."""
     return evaluate_actor(key, env, acting(env, cfg, state), episodes, attack, state)
-
-
-def evaluate_actor(key, env: Env, actor: Actor, episodes: int, attack: Attack, state):
-    """Per-episode metrics of `episodes` episodes of `actor`, the attack acting as in
-    training (`state` carries its env_steps and attack_state)."""
-    trajs = jax.vmap(
-        lambda k: rollout(
-            env, k, actor.act, actor.give, attack, state.env_steps, state.attack_state
-        )
-    )(jax.random.split(key, episodes))
-    return jax.vmap(lambda t: episode_metrics(env, t))(trajs)
