@@ -29,6 +29,7 @@ from pimbot.analysis.runs import (  # noqa: E402
     env_label,
 )
 from pimbot.analysis.tables import check_metrics  # noqa: E402
+from pimbot.atomic_files import save_figure  # noqa: E402
 from pimbot.training import store  # noqa: E402
 
 RANDOM_POLICY = {
@@ -192,8 +193,10 @@ def mark_zero_bars(ax, xs, heights, color) -> None:
 
 def save(fig, path: Path, dpi: int = 110, svg: bool = True) -> None:
     """Writes the figure as `path` (PNG) and, with `svg`, as the SVG beside it (same name,
-    .svg: the report's vector copy of every figure). A figure-wide legend (`legend_below`)
-    gets a strip of its own under the panels: the figure grows by its height."""
+    .svg: the report's vector copy of every figure), each staged (`atomic_files.save_figure`:
+    a full disk leaves the old figure, never a cut one). A figure-wide legend
+    (`legend_below`) gets a strip of its own under the panels: the figure grows by its
+    height."""
     below = 0.0
     if fig.legends:
         renderer = fig.canvas.get_renderer()
@@ -202,10 +205,12 @@ def save(fig, path: Path, dpi: int = 110, svg: bool = True) -> None:
         fig.set_figheight(fig.get_figheight() + below)
     fig.tight_layout(rect=(0, below / fig.get_figheight(), 1, 1))
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi)
-    if svg:
-        fig.savefig(path.with_suffix(".svg"), metadata={"Date": None})
-    plt.close(fig)
+    try:
+        save_figure(fig, path, dpi=dpi)
+        if svg:
+            save_figure(fig, path.with_suffix(".svg"), metadata={"Date": None})
+    finally:
+        plt.close(fig)
 
 
 # --- `pimbot plot` ---------------------------------------------------------------------

@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from pimbot.atomic_files import save_figure
 from pimbot.profiling import process_cpu
 from pimbot.training import store
 
@@ -401,5 +402,7 @@ def plot_profiles(run_dirs: dict[str, Path], out: Path, truncate_idle_gpu: bool 
                 ax.set_title(name)
         axes[-1][col].set_xlabel("time (s)")
     fig.tight_layout()
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
+    try:
+        save_figure(fig, out, dpi=120)
+    finally:
+        plt.close(fig)

@@ -29,7 +29,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from pimbot.atomic_files import write_atomic
+from pimbot.atomic_files import remove_leftovers, write_atomic
 from pimbot.envs.core import InvalidParameter
 
 CONFIG = "config.json"
@@ -189,8 +189,12 @@ def settle_checkpoint(run_dir: Path) -> None:
     where the state is the pending one (killed after replacing the state), its metadata
     becomes meta.json; otherwise the state was not replaced and the old checkpoint stands.
     Only the run's writer calls this, holding the run's lock (`locked`): readers never
-    change a run directory, which may be in use."""
+    change a run directory, which may be in use. The files a killed write left staged
+    (`atomic_files.leftovers`: a state, a meta.json, metrics.csv, config.json half
+    written) are removed here too."""
     ckpt = run_dir / CHECKPOINT_DIR
+    remove_leftovers(run_dir)
+    remove_leftovers(ckpt)
     if not (ckpt / PENDING_META).exists():
         return
     pending = read_json(ckpt / PENDING_META)
