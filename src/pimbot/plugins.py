@@ -85,6 +85,21 @@ def _reason(error: BaseException, path: str | None = None) -> str:
     return f"{at}: {reason}" if at else reason
 
 
+def _stopped(error: SystemExit | KeyboardInterrupt, path: str | None = None) -> str:
+    """Why an import ended without an ordinary exception: the plugin called exit() (with its
+    status) or was interrupted; ``FILE:LINE: `` where the plugin file `path` did it. Either
+    way the plugin is not loaded, and the command ends with its one line and status 2 rather
+    than with the plugin's status or a traceback."""
+    if isinstance(error, SystemExit):
+        code = error.code
+        status = "" if code is None else f" {code!r}" if not isinstance(code, int) else f" {code}"
+        reason = f"it called exit{status and '(' + status.strip() + ')'} while being imported"
+    else:
+        reason = "interrupted (KeyboardInterrupt) while being imported"
+    at = _line_in(error, [path]) if path else None
+    return f"{at}: {reason}" if at else reason
+
+
 def _line_in(error: BaseException, files: Iterable[str]) -> str | None:
     """``FILE:LINE`` of the innermost frame of `error`'s traceback in one of `files` (a
     syntax error: where the parser stopped), or None."""
@@ -132,6 +147,9 @@ def load(module: str) -> ModuleType:
             raise
         path = key if is_path(key) else _module_file(key)
         raise PluginError(f"plugin: cannot import {module}: {_reason(error, path)}") from error
+    except (SystemExit, KeyboardInterrupt) as error:  # exit(), Ctrl-C or a raise at import
+        path = key if is_path(key) else _module_file(key)
+        raise PluginError(f"plugin: cannot import {module}: {_stopped(error, path)}") from None
     _LOADED[key] = loaded
     _loaded_new()
     return loaded
@@ -174,9 +192,10 @@ def load_plugins(extra: Iterable[str] = (), *, from_env: bool = True) -> tuple[s
             continue
         try:
             _LOADED[key] = entry.load()
-        except Exception as error:
+        except (Exception, SystemExit, KeyboardInterrupt) as error:
+            reason = _reason(error) if isinstance(error, Exception) else _stopped(error)
             raise PluginError(
-                f"plugin: cannot import {entry.value} (entry point {entry.name}): {_reason(error)}"
+                f"plugin: cannot import {entry.value} (entry point {entry.name}): {reason}"
             ) from None
     if len(_LOADED) != before:
         _loaded_new()

@@ -12,11 +12,14 @@ from pimbot.cli.commands import CHECK_ENV, Check
 
 
 def cmd_check(args: Check) -> int:
-    """Runs the canary of `args.file`; its exit status."""
+    """Runs the canary of `args.file` (its size bounded: `canary.Size`, each run announced
+    on stderr); its exit status."""
+    from pimbot.training import canary
+
+    size = canary.Size(seeds=args.seeds, iterations=args.iterations, progress=True)  # bounds
     plugins.load_plugins([args.file], from_env=False)
     path = getattr(plugins.load(args.file), "__file__", None) or plugins.canonical(args.file)
     from pimbot.contracts import preflight
-    from pimbot.training import canary
 
     preflight.check_plugins()  # a broken env is one line before any run
     options = canary.Options(
@@ -24,9 +27,8 @@ def cmd_check(args: Check) -> int:
         env=args.env,
         learner=args.learner,
         defense_attack=args.defense_attack,
-        size=canary.Size(seeds=args.seeds, iterations=args.iterations),
+        size=size,
     )
-    size = options.size
     parts = canary.describe(canary.parts_of(path))
     print(f"pimbot check {args.file} ({parts}): seeds: {size.seeds}, iterations: {size.iterations}")
     result = canary.check_file(path, options)

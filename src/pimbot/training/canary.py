@@ -27,6 +27,7 @@ does: pimbot check").
 from __future__ import annotations
 
 import dataclasses
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -43,11 +44,29 @@ from pimbot.training.config import RunConfig, resolve
 
 @dataclasses.dataclass(frozen=True)
 class Size:
-    """How long each canary run is."""
+    """How long each canary run is, within `MAX_SEEDS` and `MAX_ITERATIONS`; with
+    `progress`, each seed's run is announced on stderr as it starts (`paired_run`)."""
 
     seeds: int = 2
     iterations: int = 20
     eval_episodes: int = 2
+    progress: bool = False
+
+    def __post_init__(self) -> None:
+        for name, high in (("seeds", MAX_SEEDS), ("iterations", MAX_ITERATIONS)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= high:
+                raise InvalidParameter(
+                    f"{name}: a canary runs 1 to {high} {name}, got {value!r}; it checks "
+                    "that each hook acts, in seconds (pimbot train runs a long one)"
+                )
+
+
+MAX_SEEDS = 16
+MAX_ITERATIONS = 10_000
+"""The canary's bounds: each part runs up to 4 runs (a defense clean and attacked, each with
+and without its hooks), one seed after another, so `check` takes at most about
+4 × parts × MAX_SEEDS × MAX_ITERATIONS iterations (minutes on a CPU), never hours."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -169,6 +188,14 @@ def paired_run(resolved, build: Build, size: Size, paired: bool = True) -> Outco
         args = (*build(on), *shared)
         per_seed = []
         for seed in range(size.seeds):
+            if size.progress:
+                half = ("with its hooks" if on else "hooks as no-ops") if paired else "trained"
+                print(
+                    f"check: {runner.run_title(resolved)}, {half}: seed {seed + 1}/{size.seeds}, "
+                    f"{size.iterations} iterations",
+                    file=sys.stderr,
+                    flush=True,
+                )
             keys = runner.seed_keys(seed, 1)
             states = init(jax.vmap(lambda k: jax.random.fold_in(k, 0))(keys), *args)
             before = jax.device_get(states)  # the chunk takes (donates) the states
