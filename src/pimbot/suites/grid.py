@@ -66,7 +66,13 @@ from pimbot import plugins as plugin_loader
 from pimbot.contracts import preflight
 from pimbot.envs.core import InvalidParameter
 from pimbot.suites.jobs import Job, Skipped
-from pimbot.training.config import IncompatibleHooks, RunConfig, coerce_like, resolve
+from pimbot.training.config import (
+    IncompatibleHooks,
+    RunConfig,
+    coerce_like,
+    resolve,
+    resolving,
+)
 
 Pairs = tuple[tuple[str, Any], ...]
 CLEAN = "none"
@@ -202,6 +208,9 @@ def expand_cells(grid: Grid) -> list[Cell]:
     """
     cells: list[Cell] = []
     names: set[str] = set()
+    group = _sanitise(grid.name)
+    label = {id(e): e.name_label for e in (*grid.envs, *grid.learners, *grid.attacks)}
+    label |= {id(e): e.name_label for e in grid.defenses}  # each entry's label made once
     for env in grid.envs:
         iterations = env.iterations if env.iterations is not None else grid.iterations
         if iterations is None:
@@ -210,9 +219,9 @@ def expand_cells(grid: Grid) -> list[Cell]:
         for learner in grid.learners:
             for attack in grid.attacks:
                 for defense in grid.defenses:
-                    labels = (env, learner, attack, defense)
-                    setting = "_".join(e.name_label for e in labels if e.name_label)
-                    name = f"{_sanitise(grid.name)}/{setting}"
+                    labels = (label[id(env)], label[id(learner)], label[id(attack)])
+                    setting = "_".join(x for x in (*labels, label[id(defense)]) if x)
+                    name = f"{group}/{setting}"
                     if not setting or name in names:
                         raise GridError(
                             f"label: two jobs would be named {name!r}; give the entries "
@@ -253,13 +262,14 @@ def validate(jobs: list[Job]) -> list[Skipped]:
         GridError: ``<job name>: <field>: <why; allowed values>``; or every job skipped.
     """
     skipped = []
-    for job in jobs:
-        try:
-            resolve(job.spec)
-        except IncompatibleHooks as error:
-            skipped.append(Skipped(job.name, error.reason))
-        except InvalidParameter as error:
-            raise GridError(f"{job.name}: {error}") from None
+    with resolving():  # each distinct env, config, attack and defense stack built once
+        for job in jobs:
+            try:
+                resolve(job.spec)
+            except IncompatibleHooks as error:
+                skipped.append(Skipped(job.name, error.reason))
+            except InvalidParameter as error:
+                raise GridError(f"{job.name}: {error}") from None
     if jobs and len(skipped) == len(jobs):
         raise GridError(
             f"grid: every cell is incompatible ({len(jobs)} cells), e.g. {skipped[0].name}: "

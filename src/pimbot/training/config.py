@@ -8,7 +8,9 @@ anything is written.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+from collections.abc import Callable, Iterator
 from typing import Any
 
 from pimbot import attacks, defenses, envs, learners
@@ -116,14 +118,65 @@ ITERATION_LIMIT = 2**31 - 1
 """The compiled program counts iterations in int32."""
 
 
+_MEMO: dict | None = None
+"""The parts `resolve` has built inside `resolving()`; None outside it."""
+
+
+@contextlib.contextmanager
+def resolving() -> Iterator[None]:
+    """Inside the block, `resolve` builds each distinct part of the runs it resolves once
+    (an env of one id and parameters, a learner config, an attack, a defense stack, the
+    registries' hooks) and shares it, immutable, between the runs that have it; so does
+    `memoized`. A grid's planning is then linear in its jobs with a small constant (10^5
+    jobs of a product grid are a few hundred distinct parts). Nested blocks share the
+    outer one's parts; they are dropped when it ends (plugins loaded later start afresh)."""
+    global _MEMO
+    if _MEMO is not None:
+        yield
+        return
+    _MEMO = {}
+    try:
+        yield
+    finally:
+        _MEMO = None
+
+
+def in_resolving() -> bool:
+    """Whether a `resolving()` block is open."""
+    return _MEMO is not None
+
+
+def memoized(kind: str, key: Any, make: Callable[[], Any]) -> Any:
+    """`make()`, once per (`kind`, `key`) inside `resolving()`; every call outside it."""
+    memo = _MEMO
+    if memo is None:
+        return make()
+    try:
+        hash(key)
+    except TypeError:  # a list among the values
+        key = repr(key)
+    if (kind, key) not in memo:
+        memo[kind, key] = make()
+    return memo[kind, key]
+
+
 def resolve(run: RunConfig) -> ResolvedRun:
-    """Validates `run` and builds its env and learner config.
+    """Validates `run` and builds its env and learner config (each distinct part once
+    inside `resolving()`, and each run once: a sweep checks its jobs, then plans them).
 
     Raises:
         InvalidParameter: naming the bad field and the allowed values.
     """
+    return memoized("run", run, lambda: _resolve(run))
+
+
+def _resolve(run: RunConfig) -> ResolvedRun:
     learner = learners.get(run.learner)
-    env = envs.make(run.env_id, **env_arguments(run, learner))
+    env = memoized(
+        "env",
+        (run.learner, run.env_id, run.env_params),
+        lambda: envs.make(run.env_id, **env_arguments(run, learner)),
+    )
     check_int("seeds", run.seeds, 1, SEED_LIMIT)
     check_int("first_seed", run.first_seed, 0, SEED_LIMIT - run.seeds)
     check_int("iterations", run.iterations, 1, ITERATION_LIMIT)
@@ -134,6 +187,36 @@ def resolve(run: RunConfig) -> ResolvedRun:
         raise InvalidParameter(
             f"iterations: must be a multiple of eval_period = {eval_period}, got {run.iterations}"
         )
+    learner_config = memoized(
+        "learner_config", (run.learner, run.env_id, run.hparams), lambda: _learner_config(run)
+    )
+    attack = NO_ATTACK
+    if run.attack is not None:
+        attack = memoized(
+            "attack",
+            (run.attack, env.num_agents, run.attack_params),
+            lambda: attacks.make(run.attack, env.num_agents, **dict(run.attack_params)),
+        )
+        known = memoized("attack_hooks", None, _attack_hooks)
+        check_hooks("attack", run.attack, attack.hooks, learner.attack_hooks, run.learner, known)
+    run_defenses = memoized(
+        "defenses",
+        (run.defenses, env.num_agents),
+        lambda: defenses.compose(run.defenses, env.num_agents),
+    )
+    known = memoized("defense_hooks", None, _defense_hooks)
+    for defense in run_defenses:
+        check_hooks(
+            "defenses", defense.name, defense.hooks, learner.defense_hooks, run.learner, known
+        )
+    return ResolvedRun(
+        run, env, learner, learner_config, eval_period, eval_episodes, attack, run_defenses
+    )
+
+
+def _learner_config(run: RunConfig) -> Any:
+    """The learner config of `run`: its learner's defaults on its env, `run.hparams` over."""
+    learner = learners.get(run.learner)
     defaults = learner.default_config(envs.spec(run.env_id))
     fields = {f.name: f for f in dataclasses.fields(defaults)}
     overrides = {}
@@ -145,20 +228,15 @@ def resolve(run: RunConfig) -> ResolvedRun:
         overrides[name] = coerce_like(name, value, getattr(defaults, name))
     learner_config = dataclasses.replace(defaults, **overrides)
     check_fields(learner_config)  # finite, and within the config class's RANGES
-    attack = NO_ATTACK
-    if run.attack is not None:
-        attack = attacks.make(run.attack, env.num_agents, **dict(run.attack_params))
-        known = {n: attacks.attack_class(n).hooks for n in attacks.registered()}
-        check_hooks("attack", run.attack, attack.hooks, learner.attack_hooks, run.learner, known)
-    run_defenses = defenses.compose(run.defenses, env.num_agents)
-    known = {n: defenses.defense_class(n).hooks for n in defenses.registered()}
-    for defense in run_defenses:
-        check_hooks(
-            "defenses", defense.name, defense.hooks, learner.defense_hooks, run.learner, known
-        )
-    return ResolvedRun(
-        run, env, learner, learner_config, eval_period, eval_episodes, attack, run_defenses
-    )
+    return learner_config
+
+
+def _attack_hooks() -> dict[str, Any]:
+    return {n: attacks.attack_class(n).hooks for n in attacks.registered()}
+
+
+def _defense_hooks() -> dict[str, Any]:
+    return {n: defenses.defense_class(n).hooks for n in defenses.registered()}
 
 
 def check_hooks(field: str, name: str, needed, consulted, learner: str, others) -> None:

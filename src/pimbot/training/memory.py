@@ -14,19 +14,35 @@ import jax
 import psutil
 
 from pimbot.envs.core import InvalidParameter
-from pimbot.training.config import ResolvedRun
+from pimbot.training import config, programs
+from pimbot.training.config import ResolvedRun, memoized
 
 
 def state_bytes(resolved: ResolvedRun) -> int:
-    """Bytes of the learner state of all the run's seeds (shapes only, nothing computed)."""
+    """Bytes of the learner state of all the run's seeds (shapes only, nothing computed);
+    inside `config.resolving()`, traced once per `programs.state_structure` (a sweep's
+    plan: a few distinct structures among many jobs)."""
     env, learner, cfg = resolved.env, resolved.learner, resolved.learner_config
 
-    def init(key):
-        return learner.init(key, env, cfg, resolved.attack, resolved.defenses)
+    def per_seed() -> int:
+        def init(key):
+            return learner.init(key, env, cfg, resolved.attack, resolved.defenses)
 
-    shapes = jax.eval_shape(init, jax.random.PRNGKey(0))
-    per_seed = sum(math.prod(x.shape) * x.dtype.itemsize for x in jax.tree.leaves(shapes))
-    return per_seed * resolved.run.seeds
+        shapes = jax.eval_shape(init, jax.random.PRNGKey(0))
+        return sum(math.prod(x.shape) * x.dtype.itemsize for x in jax.tree.leaves(shapes))
+
+    if not config.in_resolving():
+        return per_seed() * resolved.run.seeds
+    # per ResolvedRun (kept, so its id stays its own), then per structure
+    known = memoized(
+        "state_bytes_of",
+        id(resolved),
+        lambda: (
+            resolved,
+            memoized("state_bytes", programs.state_structure(resolved), per_seed),
+        ),
+    )
+    return known[1] * resolved.run.seeds
 
 
 def evaluation_bytes(resolved: ResolvedRun) -> int:
@@ -50,7 +66,9 @@ def available_bytes() -> int:
 def check_fits(resolved: ResolvedRun, available: int | None = None) -> None:
     """Raises InvalidParameter when the evaluation's observations or the learner state alone
     need more than `available` bytes."""
-    available = available_bytes() if available is None else available
+    available = (
+        memoized("available_bytes", None, available_bytes) if available is None else available
+    )
     needed = state_bytes(resolved)
     if needed > available:
         params = ", ".join(f"{k}={v}" for k, v in resolved.run.env_params) or "defaults"

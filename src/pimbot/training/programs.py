@@ -42,7 +42,7 @@ from pimbot.attacks.strategy_union import structure
 from pimbot.contracts.attack import Attack
 from pimbot.contracts.learner import program_config
 from pimbot.envs.core import program_env
-from pimbot.training.config import ResolvedRun
+from pimbot.training.config import ResolvedRun, memoized
 
 
 def optimum_numbers(env: Any) -> dict[str, np.float32]:
@@ -137,3 +137,24 @@ def share_key(resolved: ResolvedRun, periods: int, seeds: int, devices: int = 1)
 
 def with_attack(resolved: ResolvedRun, attack: Attack) -> ResolvedRun:
     return dataclasses.replace(resolved, attack=attack)
+
+
+def _of(kind: str, obj: Any, make) -> Any:
+    """`make(obj)`, once per object inside `config.resolving()` (whose runs share their
+    parts); the object is kept with it, so its id is not reused meanwhile."""
+    return memoized(kind, id(obj), lambda: (obj, make(obj)))[1]
+
+
+def state_structure(resolved: ResolvedRun) -> tuple:
+    """What the shapes of a run's learner state depend on: the structure its program is
+    compiled for (`program_key` without the schedule: numbers that are traced never set a
+    shape). Runs with one `state_structure` have states of one size per seed."""
+    return (
+        type(resolved.env).__module__,
+        type(resolved.env).__qualname__,
+        _of("env_structure", resolved.env, _env_structure),
+        _of("learner_code", resolved.learner, learner_code),
+        _of("config_structure", resolved.learner_config, _config_structure),
+        _of("attack_structure", resolved.attack, lambda a: structure(a.program_form())),
+        _of("defense_structure", resolved.defenses, structure),
+    )
