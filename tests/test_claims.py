@@ -708,3 +708,40 @@ def test_coverage_counts_a_renamed_job_under_its_former_name():
     missing = "reciprocators/rec_er42_admo_disrupt"  # the former petty row
     index["jobs"] = [j for j in index["jobs"] if j["name"] != missing]
     assert claim_coverage(index)["C7"] == (planned - 1, planned)
+
+
+def test_c7_code_batch_shortfall_is_classified_by_the_original_code_at_its_settings(tmp_path):
+    """The baseline at the PIMbot code's ER script as it runs: without an original-code run
+    inconclusive; with one at the same settings that also stays below 0.8, the paper
+    contradicts its own code; with one that reproduces the paper and differs from ours by
+    a permutation test, our implementation. An original run at other settings is named,
+    never compared."""
+    code = {"lr": 1e-4, "gamma": 0.99, "reciprocal_weight": 5.0, "grudge": "petty", "num_envs": 1}
+
+    def run(name, success, config=code, seeds=10):
+        return write_run(
+            tmp_path,
+            f"reciprocators/{name}",
+            const(**{"eval/success": success}),
+            env_params=er(2, 1),
+            learner="reciprocator",
+            seeds=seeds,
+            horizon=1000,
+            period=100,
+            learner_config=config,
+        )
+
+    ours = run("code_e1", lambda s: 0.1 * (s % 2))  # 0 .1 0 .1 …: mean 0.05
+    part = "ER(2,1) baseline, the original code's batch of one episode per update"
+    alone = reciprocators.c7([ours]).verdict.parts
+    assert dict(alone)[part].kind == verdicts.INCONCLUSIVE
+    short = run("original_short", lambda s: 0.1 * (s % 3 == 0), seeds=5)
+    judged = dict(reciprocators.c7([ours], (short,)).verdict.parts)[part]
+    assert judged.causes == (verdicts.PAPER_CODE,), judged
+    assert "the original code (reciprocators/original_short, 5 seeds, the same" in judged.reason
+    solved = run("original_solved", 0.95, seeds=5)
+    judged = dict(reciprocators.c7([ours], (solved,)).verdict.parts)[part]
+    assert judged.causes == (verdicts.IMPLEMENTATION,), judged
+    elsewhere = run("original_other", 0.95, config=code | {"lr": 1e-3}, seeds=5)
+    judged = dict(reciprocators.c7([ours], (elsewhere,)).verdict.parts)[part]
+    assert judged.kind == verdicts.INCONCLUSIVE and "lr 0.001 in the original" in judged.reason

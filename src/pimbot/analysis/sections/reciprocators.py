@@ -8,7 +8,15 @@ from pimbot import envs, learners
 from pimbot.analysis import judging, plots, verdicts
 from pimbot.analysis.claims import CLAIM_TEXT, Claim, Comparison, summarized
 from pimbot.analysis.document import Context, Section, seeds_text
-from pimbot.analysis.runs import CLEAN, RunRecord, RunTable, condition_key, natural_key
+from pimbot.analysis.runs import (
+    CLEAN,
+    RunRecord,
+    RunTable,
+    condition_key,
+    natural_key,
+    same_settings,
+    settings_difference,
+)
 from pimbot.analysis.tables import INTERVAL, Table, difference, estimate
 from pimbot.statistics import interval_text
 
@@ -135,7 +143,7 @@ def section(table: RunTable, ctx: Context) -> Section | None:
             "env return per step, rescaled to the rate axis)"
         )
         out.figures.append(figure)
-    out.claims.append(c7(runs))
+    out.claims.append(c7(runs, table.original))
     settings = settings_table(runs)
     if settings is not None:
         out.tables.append(settings)
@@ -217,12 +225,13 @@ def primary(runs: list[RunRecord], env: str, condition: str) -> RunRecord | None
     )
 
 
-def c7(runs: list[RunRecord]) -> Claim:
+def c7(runs: list[RunRecord], originals: tuple[RunRecord, ...] = ()) -> Claim:
     """C7 as stated: clean ≥ BASELINE everywhere, ADMO below its published bound. Each
     setting's baseline is its own part (pimbot's defaults, and the original code's batch of
     one episode per update where it ran), never the best of several runs. A shortfall at the
     defaults is the paper's environment where the transfer counterfactual solves the room;
-    otherwise, as every disagreement without an original-code log, inconclusive."""
+    otherwise its cause comes from the original code's run at the same settings
+    (`originals`, `against_original`), and without one it is inconclusive."""
     parts, lines, numbers, headlines = {}, [], [], {}
     for env in C7_ENVS:
         clean, admo = primary(runs, env, CLEAN), primary(runs, env, ATTACKED)
@@ -240,7 +249,9 @@ def c7(runs: list[RunRecord]) -> Claim:
                 )
             )
             reached = judging.above(base, BASELINE, "clean")
-            parts[f"{env} baseline"] = reached or baseline_shortfall(runs, clean, base)
+            if reached is not None:
+                reached = with_original(reached, originals, clean)
+            parts[f"{env} baseline"] = reached or baseline_shortfall(runs, clean, base, originals)
             headlines[f"{env} baseline"] = f"{env} clean {base}"
             if env in C7_TARGETS:
                 parts[f"{env} ADMO"] = admo_part(base, reached is None, attacked, C7_TARGETS[env])
@@ -248,7 +259,7 @@ def c7(runs: list[RunRecord]) -> Claim:
         for run in code_batch_runs(runs, env):
             name = f"{env} baseline, {CODE_BATCH}"
             name = name if name not in parts else f"{name} ({run.setting})"
-            parts[name] = code_batch_part(run)
+            parts[name] = code_batch_part(run, originals)
             headlines[name] = f"{env} clean {estimate(run.per_seed('eval/success'))}, batch of one"
     counts = {k: sum(v.kind == k for v in parts.values()) for k in verdicts.KINDS}
     verdict = verdicts.combine(parts)
@@ -313,19 +324,67 @@ def code_batch_runs(runs: list[RunRecord], env: str) -> list[RunRecord]:
     )
 
 
-def code_batch_part(run: RunRecord) -> verdicts.Verdict:
+def code_batch_part(run: RunRecord, originals: tuple[RunRecord, ...] = ()) -> verdicts.Verdict:
     """The baseline at the original code's batch of one: reproduced where its interval lies
-    above BASELINE (`judging.above`); below, inconclusive (pimbot at the code's settings,
-    no original-code log to compare with)."""
+    above BASELINE (`judging.above`); below, its cause from the original code's run at the
+    same settings (`against_original`)."""
     est = estimate(run.per_seed("eval/success"))
     at = f"after {run.iterations:,} updates of one episode ({run.setting})"
     reached = judging.above(est, BASELINE, "clean")
     if reached is not None:
-        return dataclasses.replace(reached, reason=f"{reached.reason} {at}")
-    return judging.disagreement(f"clean {est} {at}; {CODE_LOGS}", None)
+        return with_original(
+            dataclasses.replace(reached, reason=f"{reached.reason} {at}"), originals, run
+        )
+    return against_original(f"clean {est} {at}", originals, run)
 
 
-def baseline_shortfall(runs, clean, base) -> verdicts.Verdict:
+def original_code(originals, run: RunRecord) -> tuple[RunRecord | None, str]:
+    """The original code's run at `run`'s exact settings (None: there is none) and a clause
+    naming every original-code run of `run`'s env, learner and condition with its final
+    success, and for one at other settings what differs (`settings_difference`)."""
+    same = [o for o in originals if same_settings(o, run)]
+    near = [
+        o
+        for o in originals
+        if o.env_key == run.env_key
+        and o.learner == run.learner
+        and o.condition == run.condition
+        and not same_settings(o, run)
+        and o.per_seed("eval/success").size
+    ]
+    texts = [
+        f"the original code ({o.name}, {o.seeds} seeds"
+        + (f"; {settings_difference(o, run)}" if o in near else ", the same settings")
+        + f"): {estimate(o.per_seed('eval/success'))}"
+        for o in same + near
+    ]
+    return (same[0] if same else None), "; ".join(texts)
+
+
+def with_original(verdict: verdicts.Verdict, originals, run: RunRecord) -> verdicts.Verdict:
+    """`verdict` with the original code's runs of `run`'s setting named in its reason."""
+    _, text = original_code(originals, run)
+    return dataclasses.replace(verdict, reason=f"{verdict.reason}; {text}") if text else verdict
+
+
+def against_original(reason: str, originals, run: RunRecord) -> verdicts.Verdict:
+    """A clean shortfall of `run` below BASELINE, its cause from the original code's run at
+    the same settings (`judging.disagreement`): above BASELINE by its interval, the original
+    reproduces the paper (pimbot's seeds tested against its seeds); at or below it, the
+    paper contradicts its own code; undecided, or no such run, inconclusive naming what
+    there is."""
+    same, text = original_code(originals, run)
+    if same is None:
+        return judging.disagreement(f"{reason}; {text or CODE_LOGS}", None)
+    theirs = same.per_seed("eval/success")
+    reached = judging.above(estimate(theirs), BASELINE, "the original code's clean success")
+    if reached is not None and reached.kind == verdicts.INCONCLUSIVE:
+        return verdicts.inconclusive(f"{reason}; {text}: its interval includes {BASELINE:g}")
+    ours = run.per_seed("eval/success")
+    return judging.disagreement(f"{reason}; {text}", reached is not None, ours, theirs)
+
+
+def baseline_shortfall(runs, clean, base, originals=()) -> verdicts.Verdict:
     """A clean shortfall at pimbot's defaults. Where another balance solves the same
     environment (≥ BASELINE, each run on its own) the environment is not the cause:
     inconclusive, naming that run. Otherwise the paper's environment where a transfer
@@ -356,10 +415,10 @@ def baseline_shortfall(runs, clean, base) -> verdicts.Verdict:
                 f"clean {base}; with a reward-transfer action (counterfactual, {run.setting}) "
                 f"{score:.2f}: the paper's env has no pay-back channel",
             )
-    return judging.disagreement(
-        f"clean {base} at pimbot's defaults; no transfer counterfactual that succeeds; "
-        + CODE_LOGS,
-        None,
+    return against_original(
+        f"clean {base} at pimbot's defaults; no transfer counterfactual that succeeds",
+        originals,
+        clean,
     )
 
 
