@@ -27,11 +27,19 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from pimbot import nets
-from pimbot.contracts import attack as hook
-from pimbot.contracts import defense
-from pimbot.contracts.learner import Actor, LearnerDef, register
-from pimbot.contracts.rollout import episode_metrics, rollout
+from pimbot.contracts.plugin_api import (
+    NO_ATTACK,
+    NO_DEFENSE,
+    Actor,
+    LearnerDef,
+    Outcome,
+    attack_key,
+    episode_metrics,
+    nets,
+    register_learner,
+    rollout,
+)
+from pimbot.contracts.plugin_api import learner_kit as kit
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,7 +79,7 @@ class ACState:
     critic: Any  # stacked critic parameters, leaves [N, ...]
     actor_opt: Any  # Adam states (elementwise, so one per agent)
     critic_opt: Any
-    attack_state: Any  # the attack's own per-seed state
+    attack_state: Any  # the attack's own per-seed state (these five: kit.hook_fields)
     defense_state: tuple  # each defense's own state, in order
     key: jax.Array
     iteration: jax.Array  # int32 []
@@ -85,17 +93,6 @@ OWN = f"learner/{NAME}/"
 
 def networks(env, cfg: ACConfig) -> tuple[nets.MLP, nets.MLP]:
     return nets.policy_module(cfg.actor_hidden, env.num_actions), nets.MLP(cfg.critic_hidden, 1)
-
-
-def act_fn(actor_net, actor, epsilon):
-    """rollout's act(key, obs [N, obs_dim]) -> actions [N]; ε is [] or [N] (per agent)."""
-    epsilon = epsilon[:, None] if jnp.ndim(epsilon) else epsilon
-
-    def act(key, obs):
-        logits = nets.apply_stacked(actor_net, actor, obs)
-        return jax.random.categorical(key, nets.mixed_log_probs(logits, epsilon))
-
-    return act
 
 
 def advantages(rewards, values, valid, gamma, lam):
@@ -124,37 +121,32 @@ def agent_loss(nets_, cfg, actor, critic, obs, actions, rewards, valid, epsilon)
     return actor_loss + critic_loss, critic_loss
 
 
-def init(key, env, cfg: ACConfig, attack=hook.NO_ATTACK, defenses=defense.NO_DEFENSE):
+def init(key, env, cfg: ACConfig, attack=NO_ATTACK, defenses=NO_DEFENSE):
     actor_net, critic_net = networks(env, cfg)
     actor_key, critic_key, key = jax.random.split(key, 3)
     actor = nets.init_stacked(actor_net, actor_key, env.num_agents, env.obs_dim)
     critic = nets.init_stacked(critic_net, critic_key, env.num_agents, env.obs_dim)
-    adversary = hook.AgentParams(hook.agent_row(actor, attack.adversary), {})
-    zero = jnp.zeros((), jnp.int32)
     return ACState(
         actor=actor,
         critic=critic,
         actor_opt=optax.adam(cfg.lr_actor).init(actor),
         critic_opt=optax.adam(cfg.lr_critic).init(critic),
-        attack_state=attack.init_state(hook.attack_key(key), env.num_agents, adversary),
-        defense_state=defense.init_states(defenses, env.num_agents, actor),
-        key=key,
-        iteration=zero,
-        env_steps=zero,
+        **kit.hook_fields(key, env.num_agents, attack, defenses, actor),
     )
 
 
-def update(state: ACState, env, cfg: ACConfig, attack=hook.NO_ATTACK, defenses=defense.NO_DEFENSE):
+def update(state: ACState, env, cfg: ACConfig, attack=NO_ATTACK, defenses=NO_DEFENSE):
     """One iteration: play an episode, take every agent's actor and critic step."""
     nets_, n = networks(env, cfg), env.num_agents
     key, episode_key = jax.random.split(state.key)
-    frac = jnp.minimum(state.iteration / max(cfg.epsilon_decay_iters, 1), 1.0)
-    schedule = jnp.float32(cfg.epsilon_start + (cfg.epsilon_end - cfg.epsilon_start) * frac)
+    schedule = kit.epsilon_schedule(
+        state.iteration, cfg.epsilon_start, cfg.epsilon_end, cfg.epsilon_decay_iters
+    )
     # 1. exploration (defense hook: acting_epsilon; the adversary runs no defense)
-    ctx = defense.EpsilonContext(schedule, defense.honest_agents(attack, n))
-    epsilon = jnp.broadcast_to(defense.acting_epsilon(defenses, state.defense_state, ctx), (n,))
+    epsilon = kit.acting_epsilon(defenses, state.defense_state, attack, n, schedule)
+    epsilon = jnp.broadcast_to(epsilon, (n,))
     # 2. play an episode (attack hook: act, consulted by rollout at every step)
-    act = act_fn(nets_[0], state.actor, epsilon)
+    act = kit.sampling_act(nets_[0], state.actor, epsilon)
     traj = rollout(env, episode_key, act, None, attack, state.env_steps, state.attack_state)
     # 3. the rewards each agent learns from (attack hook: learning_rewards; none received)
     received = jnp.zeros_like(traj.env_rewards)
@@ -165,27 +157,29 @@ def update(state: ACState, env, cfg: ACConfig, attack=hook.NO_ATTACK, defenses=d
         state.actor, state.critic, traj.obs, traj.actions, rewards, traj.valid, epsilon
     )
     sign = attack.policy_sign(state.attack_state, n)
-    steps, actor_opt = optax.adam(cfg.lr_actor).update(actor_grads, state.actor_opt)
-    steps = jax.tree.map(lambda s: s * sign.reshape((n,) + (1,) * (s.ndim - 1)), steps)
-    actor = optax.apply_updates(state.actor, steps)
+    adam = optax.adam(cfg.lr_actor)
+    actor, actor_opt = kit.signed_step(adam, actor_grads, state.actor_opt, state.actor, sign)
     steps, critic_opt = optax.adam(cfg.lr_critic).update(critic_grads, state.critic_opt)
     critic = optax.apply_updates(state.critic, steps)
     success = episode_metrics(env, traj)["success"]
     env_steps = state.env_steps + traj.valid.sum()
     metrics = {"train/success": success, "train/epsilon": schedule}
     metrics |= {"train/acting_epsilon": epsilon, OWN + "critic_loss": critic_loss.mean()}
-    # 5. a learning attack moves the adversary's actor (attack hook: adversary_step)
-    attack_state = state.attack_state
-    if "adversary_step" in attack.hooks:
-        view = adversary_view(nets_[0], attack, actor, traj, epsilon, success, cfg, state)
-        own, attack_state, attack_metrics = attack.adversary_step(
-            attack_state, hook.attack_key(state.key), view
+
+    # 5. a learning attack moves the adversary's actor (attack hook: adversary_step); it
+    #    sees the episode just played (ω = θ_a, r = env reward), no incentive channel
+    def view():
+        return kit.adversary_view(
+            attack, nets_[0], actor, traj, epsilon, success, cfg.gamma, state.iteration
         )
-        actor = hook.with_agent_row(actor, attack.adversary, own.policy)
-        metrics |= attack_metrics
+
+    actor, _, attack_state, attack_metrics = kit.adversary_step(
+        attack, state.attack_state, state.key, view, actor
+    )
+    metrics |= attack_metrics
     # 6. the attack's own state (attack hook: observe)
-    outcome = hook.Outcome(success, state.iteration, env_steps)
-    attack_state = attack.observe(attack_state, hook.attack_key(episode_key), outcome)
+    outcome = Outcome(success, state.iteration, env_steps)
+    attack_state = attack.observe(attack_state, attack_key(episode_key), outcome)
     new_state = ACState(
         actor, critic, actor_opt, critic_opt, attack_state, state.defense_state, key,
         state.iteration + 1, env_steps,
@@ -193,50 +187,17 @@ def update(state: ACState, env, cfg: ACConfig, attack=hook.NO_ATTACK, defenses=d
     return new_state, metrics
 
 
-def adversary_view(actor_net, attack, actor, traj, epsilon, success, cfg, state):
-    """What ADMO sees (`AdversaryView`): the episode just played, ω = θ_a (the actor), r =
-    env reward; no incentive channel, so nothing emitted, received or pulled back."""
-    a = attack.adversary
-
-    def log_probs(theta_a):  # [T], as the adversary played them
-        logits = actor_net.apply(theta_a, traj.obs[:, a])
-        every = nets.mixed_log_probs(logits, epsilon[a])  # [T, A]
-        return jnp.take_along_axis(every, traj.actions[:, a, None], axis=1)[:, 0] * traj.valid
-
-    return hook.AdversaryView(
-        policy=actor,  # the adversary's row unmoved: its policy sign was 0
-        incentive=None,
-        log_probs=log_probs,
-        env_rewards=traj.env_rewards,
-        valid=traj.valid,
-        emitted=None,
-        meta_pullback=None,
-        received=jnp.zeros(traj.valid.shape, jnp.float32),
-        received_valid=traj.valid,
-        emission_scales=(),
-        success=success,
-        gamma=cfg.gamma,
-        iteration=state.iteration,
-    )
-
-
 def acting(env, cfg: ACConfig, state: ACState) -> Actor:
     """The trained actors at ε = 0 (actions sampled)."""
-    return Actor(act_fn(networks(env, cfg)[0], state.actor, jnp.float32(0.0)))
+    return Actor(kit.sampling_act(networks(env, cfg)[0], state.actor, jnp.float32(0.0)))
 
 
-def evaluate(key, state: ACState, env, cfg: ACConfig, episodes: int, attack=hook.NO_ATTACK):
+def evaluate(key, state: ACState, env, cfg: ACConfig, episodes: int, attack=NO_ATTACK):
     """Per-episode metrics [episodes, ...] at ε = 0, the attack acting as in training."""
-    act = acting(env, cfg, state).act
-
-    def play(k):
-        traj = rollout(env, k, act, None, attack, state.env_steps, state.attack_state)
-        return episode_metrics(env, traj)
-
-    return jax.vmap(play)(jax.random.split(key, episodes))
+    return kit.evaluate_actor(key, env, acting(env, cfg, state), episodes, attack, state)
 
 
-register(
+register_learner(
     LearnerDef(
         NAME,
         "independent advantage actor-critic (GAE) on own reward, no incentives (plugin)",
