@@ -26,6 +26,7 @@ from pimbot.analysis.runs import (  # noqa: E402
     RunRecord,
     condition_key,
     condition_label,
+    defense_label,
     env_label,
 )
 from pimbot.analysis.tables import check_metrics  # noqa: E402
@@ -217,14 +218,18 @@ def save(fig, path: Path, dpi: int = 110, svg: bool = True) -> None:
 
 
 def run_label(run_dir: Path) -> str:
-    """ "lio ER(2,1) reverse": learner, env and condition (the attack and the parameters
-    the run set), then what else tells runs of one setting apart."""
+    """ "lio ER(2,1) reverse + incentive_guard": learner, env and condition (the attack and
+    the parameters the run set), the defenses (`defense_label`), then what else tells runs
+    of one setting apart."""
     config = store.read_json(run_dir / store.CONFIG)
     identity = config["identity"]
     env = env_label(config["env"]["id"], config["env"]["params"])
     given = config.get("run_config", {}).get("attack_params", ())
     condition = condition_label(identity["attack"], identity["attack_params"], given)
     label = f"{identity['learner']} {env} {condition}"
+    defenses = config.get("run_config", {}).get("defenses", ())
+    if defenses:
+        label += f" + {defense_label(defenses)}"
     first, count = config["identity"]["first_seed"], config["identity"]["seeds"]
     if first:
         label += f" seeds {first}–{first + count - 1}"
