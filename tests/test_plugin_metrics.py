@@ -158,10 +158,45 @@ def test_the_sweep_section_shows_the_attacks_metrics(sweep_dir, tmp_path):
     assert len(table) == 2, generic
     header = next(line for line in table[1].splitlines() if line.startswith("| env"))
     cells = [c.strip() for c in header.strip("|").split("|")]
-    assert cells[4:7] == [f"final {CALLS} [interval]", f"final {PREFIX}woke_at [interval]", "run"]
-    row = next(line for line in table[1].splitlines() if "| er21_counter |" in line)
-    assert "| 15.000 (range 15.000 … 15.000) | – | er21_counter |" in row
+    assert cells[4:] == ["written by", "metric", "final [interval]", "run"]
+    rows = {
+        cells[5]: cells
+        for line in table[1].splitlines()
+        if "| er21_counter |" in line
+        for cells in [[c.strip() for c in line.strip("|").split("|")]]
+    }
+    # every column the attack wrote, per-agent ones included, with what wrote it
+    assert set(rows) == {
+        CALLS,
+        f"{PREFIX}woke_at",
+        f"{PREFIX}seen/agent_0",
+        f"{PREFIX}seen/agent_1",
+    }
+    assert rows[CALLS][4:] == [
+        f"attack {NAME}",
+        CALLS,
+        "15.000 (range 15.000 … 15.000)",
+        "er21_counter",
+    ]
+    assert rows[f"{PREFIX}woke_at"][6] == "–"  # never finite
     assert (out / report.TABLES / "mygrid_own_metrics.csv").exists()
+
+
+def test_own_metrics_name_their_writer():
+    """The built-in defenses log `defense/guard_*` without their name: the row names every
+    defense of the run; a column under a defense's name names that one."""
+    from types import SimpleNamespace
+
+    from pimbot.analysis.sections.generic import writer
+
+    defenses = [["incentive_guard", []], ["health_monitor", []]]
+    run = SimpleNamespace(
+        attack="admo", learner="mine", config={"run_config": {"defenses": defenses}}
+    )
+    assert writer(run, "defense/guard_clipped") == "defense incentive_guard+health_monitor"
+    assert writer(run, "defense/health_monitor/alarms") == "defense health_monitor"
+    assert writer(run, "learner/mine/given_per_step/agent_0") == "learner mine"
+    assert writer(run, "attack/admo/c_1") == "attack admo"
 
 
 # --- the contract: checked before anything is written; not folded into shared programs -----

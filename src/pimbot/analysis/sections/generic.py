@@ -18,13 +18,11 @@ from pimbot.analysis.runs import (
 )
 from pimbot.analysis.tables import (
     INTERVAL,
-    PER_AGENT,
     Table,
     difference,
     estimate,
     final_estimate,
 )
-from pimbot.contracts.attack import state_metric_prefix
 from pimbot.statistics import interval_text
 
 STYLES = ("-", "--", ":", "-.")
@@ -45,9 +43,10 @@ def section(table: RunTable, ctx: Context) -> Section | None:
             "adversary's env return minus "
             "the mean of the others'; Δ = this run − the clean run of the same env, learner "
             "and defenses (seeds resampled independently). Metrics a run's attack, defenses "
-            "or learner logged under their own names (`attack/NAME/…`, `defense/NAME/…`, "
-            "`learner/NAME/…`: a plugin's, an attack's state metrics) have a table of their "
-            "own per group; `pimbot plot --metric` and `pimbot table --metric` show any column."
+            "or learner logged under their own names (`attack/…`, `defense/…`, `learner/…`: "
+            "a plugin's, an attack's state metrics, the defenses' counters) have a table of "
+            "their own per group, one row per metric with what wrote it; `pimbot plot "
+            "--metric` and `pimbot table --metric` show any column."
         ],
     )
     for group in sorted({r.group for r in rest}):
@@ -62,40 +61,45 @@ def section(table: RunTable, ctx: Context) -> Section | None:
     return out
 
 
-def own_namespaces(run: RunRecord) -> tuple[str, ...]:
-    """The metrics.csv prefixes of what `run`'s attack, defenses and learner log under their
-    own names: `attack/NAME/` (where an attack's `metrics` go), `defense/NAME/`,
-    `learner/NAME/`."""
-    defenses = [name for name, _ in run.config.get("run_config", {}).get("defenses", ())]
-    prefixes = [f"defense/{name}/" for name in defenses] + [f"learner/{run.learner}/"]
-    if run.attack:
-        prefixes.append(state_metric_prefix(run.attack))
-    return tuple(prefixes)
+OWN_PREFIXES = ("attack/", "defense/", "learner/")
+"""Where an attack, a defense or a learner logs under its own name (a plugin's metrics, an
+attack's state metrics, the built-in defenses' `defense/guard_*`, `defense/monitor_*`)."""
+
+
+def writer(run: RunRecord, column: str) -> str:
+    """What wrote `column` of `run`: "attack NAME", "defense NAME" (where the column names
+    it, else every defense of the run), or "learner NAME"."""
+    kind, _, rest = column.partition("/")
+    if kind == "attack":
+        return f"attack {run.attack or rest.split('/')[0]}"
+    if kind == "learner":
+        return f"learner {run.learner}"
+    names = [name for name, _ in run.config.get("run_config", {}).get("defenses", ())]
+    named = [name for name in names if rest.startswith(f"{name}/")]
+    return "defense " + "+".join(named or names or [rest.split("/")[0]])
 
 
 def own_metrics(run: RunRecord) -> list[str]:
-    """`run`'s metric columns in its parts' own namespaces (`own_namespaces`), without the
-    per-agent ones (`pimbot plot --metric` draws those)."""
-    prefixes = own_namespaces(run)
-    return [c for c in run.curves.columns if c.startswith(prefixes) and not PER_AGENT.match(c)]
+    """`run`'s metric columns that its attack, defenses or learner wrote under their own
+    names (`OWN_PREFIXES`), per-agent ones included, in metrics.csv's order."""
+    return [c for c in run.curves.columns if c.startswith(OWN_PREFIXES)]
 
 
 def own_metrics_table(runs: list[RunRecord], group: str) -> Table | None:
-    """The final value, with its interval, of every metric the group's runs logged under
-    their own names (`own_metrics`), per run; None where no run logged one."""
-    logged = {run.name: own_metrics(run) for run in runs}
-    columns = list(dict.fromkeys(c for names in logged.values() for c in names))
-    if not columns:
-        return None
+    """One row per run and metric its attack, defenses or learner logged under their own
+    names (`own_metrics`): what wrote it and its final value with its interval; None where
+    no run logged one."""
     envs = distinct_env_labels(runs)
     rows = [
         [envs[run.env_key], learner_label(run), run.defenses, run.condition]
-        + [final_estimate(run.curves, c) if c in logged[run.name] else None for c in columns]
-        + [run.setting]
+        + [writer(run, column), column, final_estimate(run.curves, column), run.setting]
         for run in sorted(runs, key=lambda r: sort_key(r, envs))
+        for column in own_metrics(run)
     ]
-    header = ["env", "learner", "defenses", "condition"]
-    header += [f"final {c} {INTERVAL}" for c in columns] + ["run"]
+    if not rows:
+        return None
+    header = ["env", "learner", "defenses", "condition", "written by", "metric"]
+    header += [f"final {INTERVAL}", "run"]
     title = f"{group}: metrics the runs' attacks, defenses and learners logged"
     slug = re.sub(r"[^A-Za-z0-9_.-]+", "_", group)
     return Table(header, rows, title, name=f"{slug}_own_metrics")
