@@ -191,6 +191,16 @@ def scorecard(records: Iterable[RunRecord]) -> Scorecard:
     return Scorecard(comparisons, unmatched)
 
 
+def unmatched_note(card: Scorecard) -> str | None:
+    """One sentence naming every run the scorecard could not pair and what it lacks; None
+    when every run was paired. A report says it whether or not anything was paired: a sweep
+    of attacked runs only has no comparison, and its runs must not vanish unnamed."""
+    if not card.unmatched:
+        return None
+    listed = "; ".join(f"{name} ({why})" for name, why in card.unmatched)
+    return f"{len(card.unmatched)} run(s) without the run they are compared with: {listed}."
+
+
 # --- estimators (rliable's, see the module docstring) -------------------------------------
 
 
