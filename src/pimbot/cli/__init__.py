@@ -125,7 +125,10 @@ class Parsed:
         if self.defaults is not None:
             from pimbot.cli.handlers import check_from_plugins
 
-            check_from_plugins(getattr(self.command, "from_run", None))  # before its names
+            command = self.command  # before its names: its plugins, the code it was made with
+            check_from_plugins(
+                getattr(command, "from_run", None), getattr(command, "accept_changed_code", False)
+            )
             check_names(self.defaults, self.source)
         check_names(self.command)
         self.command.check()

@@ -204,6 +204,9 @@ class Train(Logging, Command):
     """Rerun a saved run: its config gives every default; without --out, continue it."""
     restart: bool = False
     """Start the run in --out over: remove what a previous run wrote there first."""
+    accept_changed_code: bool = False
+    """Resume (or rerun with --from) a run made by another pimbot version or plugin code;
+    the change is recorded in its config.json. Without it such a run is refused."""
     chunk_iterations: int = 2000
     """Iterations between checkpoints (≥ 1; whole eval periods; results unchanged)."""
     quiet: bool = False
@@ -332,6 +335,9 @@ class Suite(Logging, Command):
     """Ray cluster to join: auto or HOST:PORT; None: start a local one (--backend ray)."""
     list: bool = False
     """Print the plan (every job and its status) and exit."""
+    accept_changed_code: bool = False
+    """Resume jobs made by another pimbot version or plugin code (recorded in each job's
+    config.json). Without it such a job is refused before anything runs."""
     quiet: bool = False
     """No progress display."""
     out: Annotated[str, tyro.conf.arg(metavar="DIR")]
@@ -401,9 +407,9 @@ class Check(Command):
     )
     """Check each defense under this attack as well as clean (None: clean only)."""
     seeds: int = 2
-    """Seeds of each canary run (≥ 1)."""
+    """Seeds of each canary run (1 to 16)."""
     iterations: int = 20
-    """Training iterations of each canary run (≥ 1)."""
+    """Training iterations of each canary run (1 to 10000)."""
 
     compiles: ClassVar[bool] = True
 
@@ -631,6 +637,9 @@ class Export(Command):
     """Directory to write: new, empty, or a previous export (replaced)."""
     seed: Annotated[int | None, tyro.conf.arg(metavar="SEED")] = None
     """Which seed of the run (≥ 0); None: its first seed."""
+    accept_changed_code: bool = False
+    """Export a run made by another pimbot version or plugin code (recorded in policy.json).
+    Without it such a run is refused."""
 
     def int_bounds(self) -> dict[str, int]:
         return {"seed": 0}
@@ -638,7 +647,7 @@ class Export(Command):
     def run(self, plugins: tuple[str, ...]) -> int:
         from pimbot.robot.export import export_run
 
-        sidecar = export_run(self.run_dir, self.out, self.seed)
+        sidecar = export_run(self.run_dir, self.out, self.seed, self.accept_changed_code)
         files = [a[k]["file"] for a in sidecar["agents"] for k in ("policy", "incentive") if a[k]]
         print(f"wrote {self.out}: {', '.join(files)}, policy.json")
         print(f"seed {sidecar['seed']}, iteration {sidecar['iteration']}")

@@ -82,17 +82,20 @@ def _run_config(args):
     )
 
 
-def check_from_plugins(run_dir: str | None) -> None:
+def check_from_plugins(run_dir: str | None, accept_changed_code: bool = False) -> None:
     """`train --from RUN_DIR`: every plugin the run's config.json records is loaded (by its
     file, or a file with its sha256), else one line naming the missing files and how each
-    stands now (changed since, gone).
+    stands now (changed since, gone); and the code is the code the run was made with
+    (`provenance.check`: the pimbot version, each plugin's sha256) unless
+    `accept_changed_code`.
 
     Raises:
         UsageError: ``from: RUN_DIR/config.json: the run was made with plugin FILE (...),
         which is not loaded; add --plugin FILE``.
+        provenance.CodeChanged: the run was made by other code (one line naming it).
     """
     from pimbot import plugins
-    from pimbot.training import store
+    from pimbot.training import provenance, store
 
     if run_dir is None:
         return
@@ -107,6 +110,7 @@ def check_from_plugins(run_dir: str | None) -> None:
             f"from: {path}: the run was made with plugin {named}, which "
             f"{'is' if len(absent) == 1 else 'are'} not loaded; add {hint}"
         )
+    provenance.check(Path(run_dir), accept_changed_code, "rerun")
 
 
 def cmd_train(args) -> int:
@@ -128,7 +132,8 @@ def cmd_train(args) -> int:
     with store.locked(out):
         if args.restart:
             store.clear_run(out)
-        resolved, log = runner.check(resolved, out, log)  # nothing written on a bad command
+        accept = args.accept_changed_code
+        resolved, log = runner.check(resolved, out, log, accept)  # nothing written on bad input
         on_chunk = defense_cli.chunk_logger(args.audit_log, run, args.audit_key)
         result = runner.train(
             resolved,
@@ -138,6 +143,7 @@ def cmd_train(args) -> int:
             on_chunk=on_chunk,
             log=log,
             checked=True,
+            accept_changed_code=accept,
         )
     if on_chunk is not None:
         print(f"audit log {args.audit_log}: head {on_chunk.log.last_hash}")
@@ -263,7 +269,8 @@ def _run_suite(jobs, args, suite_name: str, loaded: tuple[str, ...], skipped=())
         jobs = sweep.select(jobs, list(args.only), skipped)
         skipped = sweep.matching(skipped, list(args.only))
         if args.list:
-            _list_plan(jobs, skipped, sweep.plan(jobs, Path(args.out)))
+            statuses = sweep.plan(jobs, Path(args.out), args.accept_changed_code)
+            _list_plan(jobs, skipped, statuses)
             return 0
         options = sweep.SweepOptions(
             backend=args.backend,
@@ -273,6 +280,7 @@ def _run_suite(jobs, args, suite_name: str, loaded: tuple[str, ...], skipped=())
             progress=not args.quiet,
             plugins=loaded,
             log=log,
+            accept_changed_code=args.accept_changed_code,
         )
         result = sweep.run(jobs, args.out, suite_name, options, skipped)
     except sweep.SweepError as error:
@@ -317,10 +325,12 @@ def cmd_reproduce(args, loaded: tuple[str, ...]) -> int:
 
 def cmd_sweep(args, loaded: tuple[str, ...]) -> int:
     from pimbot.suites import grid
+    from pimbot.training.config import resolving
 
-    spec, jobs, skipped = grid.load_jobs(args.grid)  # all resolved: nothing written on bad input
-    loaded += tuple(p for p in spec.plugins if p not in loaded)  # the workers load them too
-    return _run_suite(jobs, args, spec.name, loaded, skipped)
+    with resolving():  # each job resolved once, for its check and its plan
+        spec, jobs, skipped = grid.load_jobs(args.grid)  # nothing written on bad input
+        loaded += tuple(p for p in spec.plugins if p not in loaded)  # the workers load them
+        return _run_suite(jobs, args, spec.name, loaded, skipped)
 
 
 def cmd_report(args) -> int:

@@ -54,7 +54,7 @@ from pimbot.robot.exportable import (
     incentive_file,
     policy_file,
 )
-from pimbot.training import runs, store
+from pimbot.training import provenance, runs, store
 from pimbot.training.runner import run_description
 
 SIDECAR = "policy.json"
@@ -281,6 +281,12 @@ def check_out(out: Path) -> None:
     directory holding anything but a previous export, or under a file."""
     if out.is_symlink():
         raise InvalidParameter(f"out: {out} is a symbolic link; give a directory of its own")
+    absolute, here = Path(os.path.abspath(out)), Path.cwd()
+    if absolute == here or absolute in here.parents:
+        raise InvalidParameter(
+            f"out: {out} is the current directory or holds it, which an export (a directory "
+            "renamed into place) cannot replace; give a directory to create, e.g. --out export"
+        )
     if out.exists() and not out.is_dir():
         raise InvalidParameter(f"out: {out} exists and is not a directory")
     if out.is_dir() and any(out.iterdir()) and not is_export(out):
@@ -309,9 +315,16 @@ def write_export(out: Path, files: dict[str, bytes], sidecar: dict[str, Any]) ->
         (new / SIDECAR).chmod(0o666 & ~umask)  # as a file made with open (mkstemp's is private)
 
 
-def export_run(run_dir: str | Path, out: str | Path, seed: int | None = None) -> dict[str, Any]:
+def export_run(
+    run_dir: str | Path,
+    out: str | Path,
+    seed: int | None = None,
+    accept_changed_code: bool = False,
+) -> dict[str, Any]:
     """Exports one seed (None: the run's first) of `run_dir` as ONNX models and policy.json
-    into `out`; returns the sidecar. Every input is checked before anything is written.
+    into `out`; returns the sidecar. Every input is checked before anything is written: a
+    run made by other code (another pimbot, a changed plugin: `provenance.check`) only
+    with `accept_changed_code`, which policy.json then records ("provenance_changes").
 
     Raises:
         InvalidParameter: not a run directory, no checkpoint, a seed the run lacks, a
@@ -320,12 +333,15 @@ def export_run(run_dir: str | Path, out: str | Path, seed: int | None = None) ->
     """
     require_converter()
     out = Path(out)
+    check_out(out)  # before any work: the run is loaded and converted only for a usable out
+    changed = provenance.check(Path(run_dir), accept_changed_code, "export")
     loaded = runs.load_run(run_dir)
     seed_index = seed_index_of(loaded, seed)
     agents = exported_agents(loaded, seed_index)
-    check_out(out)
     models = convert(loaded, seed_index, agents)
     parity = check_parity(loaded, seed_index, agents, models)
     sidecar = describe(loaded, seed_index, models, parity)
+    if changed:  # accepted: the run's own directory is left as it is (readers never write)
+        sidecar[provenance.CHANGES] = changed
     write_export(out, {name: m.SerializeToString() for name, m in models.items()}, sidecar)
     return sidecar

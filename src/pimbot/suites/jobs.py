@@ -59,6 +59,8 @@ class JobOptions:
     """Iterations per checkpoint of every training job."""
     log: tuple[str, ...] = ()
     """Tracking backends each training job streams its own run to (`experiment.tracking`)."""
+    accept_changed_code: bool = False
+    """Resume a job made by other code (`training.provenance`), recording the change."""
 
 
 class JobConflict(Exception):
@@ -103,6 +105,15 @@ def train_status(path: Path, spec) -> str:
     return "partial" if (path / store.CHECKPOINT_DIR).exists() else "pending"
 
 
+def train_status_new(spec) -> str:
+    """`train_status` of a job whose directory does not exist: "pending", once it fits."""
+    from pimbot.training import memory
+    from pimbot.training.config import resolve
+
+    memory.check_fits(resolve(spec))
+    return "pending"
+
+
 def train_execute(
     path: Path, spec, suite_dir: Path, options: JobOptions, shared: Any = None
 ) -> dict[str, Any]:
@@ -117,6 +128,7 @@ def train_execute(
         log=options.log,
         cache=cache,
         strategies=strategies,
+        accept_changed_code=options.accept_changed_code,
     )
     return {"success": result.summary["final"]["eval/success"]["mean"]}
 
@@ -127,7 +139,7 @@ def train_share(spec, options: JobOptions, devices: int) -> str | None:
     alone, with its own message)."""
     from pimbot.envs.core import InvalidParameter
     from pimbot.training import programs
-    from pimbot.training.config import resolve
+    from pimbot.training.config import memoized, resolve
     from pimbot.training.runner import program_shape
 
     try:
@@ -135,7 +147,11 @@ def train_share(spec, options: JobOptions, devices: int) -> str | None:
     except (InvalidParameter, KeyError, ValueError):
         return None
     periods, seeds = program_shape(resolved, options.chunk_iterations, False, devices)
-    return programs.share_key(resolved, periods, seeds, devices)
+    return memoized(  # once per resolved run and shape inside `config.resolving()`
+        "share_key",
+        (id(resolved), periods, seeds, devices),
+        lambda: (resolved, programs.share_key(resolved, periods, seeds, devices)),
+    )[1]
 
 
 def train_strategies(specs: list) -> dict[str, Any] | None:
@@ -262,6 +278,9 @@ class Kind:
     compiles_a_training_program: bool = False
     """Its jobs train (spec: a RunConfig): a group shares one `runner.ProgramCache`, whose
     compiles the suite counts, and its strategy attacks (`train_strategies`)."""
+    status_new: Callable[[Any], str] = lambda spec: "pending"
+    """`status` of a job whose directory does not exist yet (no look at the disk: a plan
+    lists each folder once, `sweep.plan`)."""
 
 
 KINDS = {
@@ -274,6 +293,7 @@ KINDS = {
         train_share,
         train_partition,
         compiles_a_training_program=True,
+        status_new=train_status_new,
     ),
     "profile": Kind(
         profile_status,

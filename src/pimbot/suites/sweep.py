@@ -24,6 +24,7 @@ import fcntl
 import fnmatch
 import json
 import os
+import signal
 import sys
 import threading
 import time
@@ -64,10 +65,16 @@ class SweepOptions:
     """Plugin modules every worker loads (as `plugins.load_plugins` returned them)."""
     log: tuple[str, ...] = ()
     """Tracking backends every training job streams its own run to (`experiment.tracking`)."""
+    accept_changed_code: bool = False
+    """Resume jobs made by other code (`training.provenance`), recording the change."""
 
     @property
     def job_options(self) -> JobOptions:
-        return JobOptions(chunk_iterations=self.chunk_iterations, log=self.log)
+        return JobOptions(
+            chunk_iterations=self.chunk_iterations,
+            log=self.log,
+            accept_changed_code=self.accept_changed_code,
+        )
 
 
 def matching(names: Iterable[Any], patterns: Iterable[str] | None) -> list[Any]:
@@ -290,13 +297,32 @@ def _exit_with_parent(parent: int) -> None:
 
 
 def _local_worker_init(parent: int, devices: int, plugins: tuple[str, ...] = ()) -> None:
-    """A local worker's start: it exits with the sweep, imports JAX and loads the plugins
-    and the compilation cache once, for every task it will run."""
+    """A local worker's start: it ignores Ctrl-C (the sweep answers it, in one line, and
+    ends its workers: `LocalBackend.shutdown`), exits with the sweep, imports JAX and loads
+    the plugins and the compilation cache once, for every task it will run."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked since its spawn
     _exit_with_parent(parent)
     # An error here would break the pool, failing every task unnamed: each task retries
     # the set-up and reports the error as its own.
     with contextlib.suppress(Exception):
         _configure_worker(devices, plugins)
+
+
+@contextlib.contextmanager
+def _interrupts_held():
+    """SIGINT blocked in this thread for the block, and delivered when it ends: a worker
+    the pool spawns meanwhile inherits the blocked signal, so a Ctrl-C that reaches the
+    whole process group while it starts (importing JAX, before `_local_worker_init` ignores
+    SIGINT) cannot print its traceback; the sweep itself loses no Ctrl-C."""
+    held = threading.current_thread() is threading.main_thread()
+    if held:
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        if held:
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
 
 
 class LocalBackend:
@@ -316,14 +342,15 @@ class LocalBackend:
         self.devices, self.options = devices, options
 
     def submit(self, task: tuple[Job, ...], suite_dir: Path) -> futures.Future:
-        return self.pool.submit(
-            execute_group,
-            task,
-            str(suite_dir),
-            self.devices,
-            self.options.job_options,
-            self.options.plugins,
-        )
+        with _interrupts_held():  # a worker spawned here starts deaf to Ctrl-C
+            return self.pool.submit(
+                execute_group,
+                task,
+                str(suite_dir),
+                self.devices,
+                self.options.job_options,
+                self.options.plugins,
+            )
 
     def shutdown(self, abandon: bool = False) -> None:
         """Ends the pool. `abandon` (the sweep stops early: an interrupt, an error) also
@@ -409,9 +436,39 @@ def read_index(suite_dir: Path) -> dict[str, Any] | None:
     return store.read_json(path) if path.exists() else None
 
 
-def plan(jobs: list[Job], suite_dir: Path) -> dict[str, str]:
-    """Status of every job; fails before anything runs if a directory conflicts."""
-    return {job.name: job_status(suite_dir, job) for job in jobs}
+def plan(jobs: list[Job], suite_dir: Path, accept_changed_code: bool = False) -> dict[str, str]:
+    """Status of every job; fails before anything runs if a directory conflicts or, unless
+    `accept_changed_code`, a job to resume was made by other code (`provenance.check`).
+    Time linear in the jobs: what each job's status needs of its run is resolved once per
+    distinct part (`config.resolving`)."""
+    from pimbot.training import provenance
+    from pimbot.training.config import resolving
+
+    statuses = {}
+    listed: dict[str, set[str]] = {}  # a folder of the suite -> what it holds
+
+    def on_disk(name: str) -> bool:  # one listing per folder, not one look per job
+        parent, _, leaf = name.rpartition("/")
+        if parent not in listed:
+            try:
+                listed[parent] = set(os.listdir(os.path.join(suite_dir, parent)))
+            except OSError:
+                listed[parent] = set()
+        return leaf in listed[parent]
+
+    with resolving():
+        for job in jobs:
+            if on_disk(job.name):
+                status = job_status(suite_dir, job)
+            else:
+                status = KINDS[job.kind].status_new(job.spec)
+            statuses[job.name] = status
+            if status == "partial":
+                try:
+                    provenance.check(job_dir(suite_dir, job), accept_changed_code)
+                except provenance.CodeChanged as error:
+                    raise SweepError(f"{job.name}: {error}") from None
+    return statuses
 
 
 def check_dependencies(jobs: list[Job], statuses: dict[str, str], suite_dir: Path) -> None:
@@ -442,7 +499,7 @@ def run(
         raise InvalidParameter(
             f"backend: unknown backend {options.backend!r}; allowed: {', '.join(BACKENDS)}"
         )
-    statuses = plan(jobs, suite_dir)
+    statuses = plan(jobs, suite_dir, options.accept_changed_code)
     check_dependencies(jobs, statuses, suite_dir)
     suite_dir.mkdir(parents=True, exist_ok=True)
     index = start_index(jobs, statuses, suite_dir, suite_name, skipped)

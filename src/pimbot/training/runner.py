@@ -44,7 +44,7 @@ from pimbot.contracts import preflight
 from pimbot.contracts.attack import STATE_METRICS, state_metric_prefix, state_metrics
 from pimbot.contracts.learner import program_config
 from pimbot.envs.core import InvalidParameter, program_env
-from pimbot.training import programs, store, tracking
+from pimbot.training import programs, provenance, store, tracking
 from pimbot.training.config import ResolvedRun, RunConfig, env_parameters, resolve
 from pimbot.training.progress import CompileNotice, Progress
 from pimbot.training.summary import summarize
@@ -486,6 +486,7 @@ def train(
     cache: ProgramCache | None = None,
     strategies: dict | None = None,
     checked: bool = False,
+    accept_changed_code: bool = False,
 ) -> TrainResult:
     """Trains (or resumes, or reports finished) one run into `run_dir`.
 
@@ -510,13 +511,17 @@ def train(
             its ResolvedRun, `log` its parsed backends, and `run_dir` was checked under the
             directory's lock (the command line, which checks before it starts the audit
             log). False: `check` runs here.
+        accept_changed_code: go on with a run made by other code (another pimbot version,
+            a changed plugin: `provenance.check`), recording the change in config.json;
+            False: such a run is refused in one line.
     """
     run_dir = Path(run_dir)
-    resolved, log = (run, tuple(log)) if checked else check(run, run_dir, log)
+    resolved, log = (run, tuple(log)) if checked else check(run, run_dir, log, accept_changed_code)
     if (run_dir / store.SUMMARY).exists():
         return TrainResult(run_dir, store.read_json(run_dir / store.SUMMARY), True)
 
     run_dir.mkdir(parents=True, exist_ok=True)
+    provenance.record(run_dir, provenance.check(run_dir, accept_changed_code))
     if not (run_dir / store.CONFIG).exists():
         store.write_json(run_dir / store.CONFIG, run_metadata(resolved))
     schedule = Schedule.of(resolved, chunk_iterations, progress)
@@ -537,17 +542,23 @@ def train(
 
 
 def check(
-    run: RunConfig | ResolvedRun, run_dir: Path, log: tuple[str, ...] = ()
+    run: RunConfig | ResolvedRun,
+    run_dir: Path,
+    log: tuple[str, ...] = (),
+    accept_changed_code: bool = False,
 ) -> tuple[ResolvedRun, tuple[str, ...]]:
     """What `train` checks before it writes anything, each once: the tracking backends
     (known, their clients installed), the run (`resolve`, unless it is resolved already)
-    the run directory (`check_run_dir`) and, where a part of the run is a plugin's, one
-    abstractly traced iteration (`contracts.preflight.check_run`). Returns (the resolved
-    run, the backends)."""
+    the run directory (`check_run_dir`), the code an unfinished run there was made with
+    (`provenance.check`, unless `accept_changed_code`) and, where a part of the run is a
+    plugin's, one abstractly traced iteration (`contracts.preflight.check_run`). Returns
+    (the resolved run, the backends)."""
     backends = tracking.parse(log)
     tracking.require_clients(backends)
     resolved = run if isinstance(run, ResolvedRun) else resolve(run)
     check_run_dir(run_dir, resolved)
+    if not (run_dir / store.SUMMARY).exists():  # a finished run is only reported
+        provenance.check(run_dir, accept_changed_code)
     preflight.check_run(  # a plugin's hooks traced once: one line at its file, nothing written
         resolved.learner,
         resolved.env,

@@ -8,6 +8,7 @@ learner internals. The policy comes from the learner contract's `acting`.
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 from typing import Any
 
@@ -60,10 +61,51 @@ def _merge(template: Any, saved: Any) -> Any:
     return saved
 
 
+def check_config(run_dir: Path, resolved: ResolvedRun) -> None:
+    """DamagedRunDir (one line) where config.json's `run_config`, from which `resolved` was
+    made, no longer describes the run its `identity` records (one of them was edited:
+    `n_agents` in the env parameters, `policy_hidden` in the hyperparameters)."""
+    from pimbot.training.runner import run_description, with_later_fields
+
+    path = run_dir / store.CONFIG
+    config = store.read_json(path)
+    wanted = json.loads(json.dumps(run_description(resolved)["identity"], default=str))
+    saved = config.get("identity")
+    if isinstance(saved, dict):
+        saved = with_later_fields(saved, wanted, resolved)
+    if saved != wanted:
+        keys = sorted(set(saved or {}) | set(wanted))
+        diff = [k for k in keys if (saved or {}).get(k) != wanted.get(k)]
+        raise store.DamagedRunDir(
+            f"{path}: does not match the run it holds (its run_config and identity differ in "
+            f"{', '.join(diff)}: the file was edited); restore it, or {store.RESTART_HINT}"
+        )
+
+
+def _check_shapes(run_dir: Path, template: Any, saved: Any, where: str = "") -> None:
+    """DamagedRunDir (one line) at the first leaf of the checkpoint's `saved` state whose
+    shape is not the shape config.json's run gives it (`template`)."""
+    if isinstance(template, dict) and isinstance(saved, dict):
+        for key in template.keys() & saved.keys():
+            _check_shapes(run_dir, template[key], saved[key], f"{where}/{key}")
+        return
+    have, want = getattr(saved, "shape", None), getattr(template, "shape", None)
+    # leaves carry the seeds first: the checkpoint's every seed, the template's one
+    if have is not None and want is not None and tuple(have)[1:] != tuple(want)[1:]:
+        raise store.DamagedRunDir(
+            f"{run_dir / store.CONFIG}: does not match the checkpoint (the state's {where} is "
+            f"{tuple(have)[1:]} per seed, the config makes it {tuple(want)[1:]}: config.json "
+            "was edited); "
+            f"restore it, or {store.RESTART_HINT}"
+        )
+
+
 def load_run(run_dir: str | Path) -> LoadedRun:
-    """Restores the checkpoint of `run_dir`; fails naming what is missing."""
+    """Restores the checkpoint of `run_dir`; fails naming what is missing, or, in one line,
+    a config.json that no longer matches its identity or its checkpoint."""
     run_dir = Path(run_dir)
     resolved = resolve(saved_run_config(run_dir))
+    check_config(run_dir, resolved)
     checkpoint = store.load_checkpoint(run_dir)
     if checkpoint is None:
         raise InvalidParameter(f"run_dir: {run_dir} has no checkpoint/ to load")
@@ -80,6 +122,7 @@ def load_run(run_dir: str | Path) -> LoadedRun:
             f"{run_dir / store.CHECKPOINT_DIR}: damaged (the state does not load: "
             f"{type(error).__name__}); {store.RESTART_HINT}"
         ) from None
+    _check_shapes(run_dir, flax.serialization.to_state_dict(target), saved_dict)
     merged = _merge(flax.serialization.to_state_dict(target), saved_dict)
     states = flax.serialization.from_state_dict(target, merged)
     seeds = tuple(range(resolved.run.first_seed, resolved.run.first_seed + resolved.run.seeds))
