@@ -78,7 +78,7 @@ def check_config(run_dir: Path, resolved: ResolvedRun) -> None:
         diff = [k for k in keys if (saved or {}).get(k) != wanted.get(k)]
         raise store.DamagedRunDir(
             f"{path}: does not match the run it holds (its run_config and identity differ in "
-            f"{', '.join(diff)}: the file was edited); restore it, or {store.RESTART_HINT}"
+            f"{', '.join(diff)}: the file was edited); {store.RESTART_HINT}"
         )
 
 
@@ -95,8 +95,7 @@ def _check_shapes(run_dir: Path, template: Any, saved: Any, where: str = "") -> 
         raise store.DamagedRunDir(
             f"{run_dir / store.CONFIG}: does not match the checkpoint (the state's {where} is "
             f"{tuple(have)[1:]} per seed, the config makes it {tuple(want)[1:]}: config.json "
-            "was edited); "
-            f"restore it, or {store.RESTART_HINT}"
+            f"was edited); {store.RESTART_HINT}"
         )
 
 
