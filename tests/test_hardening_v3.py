@@ -190,6 +190,37 @@ def test_sweep_workers_start_deaf_to_ctrl_c_and_the_sweep_loses_none():
         time.sleep(0.1)
 
 
+def test_ctrl_c_in_a_sweep_is_one_line_while_its_workers_start(tmp_path):
+    """Ctrl-C reaches the whole process group (a terminal's): the sweep, and its workers
+    while they import JAX or train. One line, exit 130, no worker's traceback."""
+    import os
+    import subprocess
+    import sys
+
+    grid = tmp_path / "grid.toml"
+    grid.write_text(
+        'name = "g"\nseeds = 1\niterations = 200000\neval_period = 100\n'
+        '[[envs]]\nid = "escape_room-v0"\n[[learners]]\nname = "lio"\n'
+        '[[attacks]]\nname = "none"\n[[attacks]]\nname = "admo"\n'
+    )
+    out = tmp_path / "out"
+    argv = [sys.executable, "-m", "pimbot.cli", "sweep", str(grid), "--out", str(out)]
+    sweep = subprocess.Popen(
+        [*argv, "--workers", "2", "--quiet"],
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    deadline = time.monotonic() + 120
+    while not (out / "index.json").exists() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    time.sleep(2)  # the workers are starting: spawned, importing
+    os.killpg(sweep.pid, signal.SIGINT)
+    _, err = sweep.communicate(timeout=120)
+    assert sweep.returncode == 130, err
+    assert err.splitlines() == ["pimbot: interrupted; rerun the same command to resume"]
+
+
 # --- the scorecard names what it cannot pair -----------------------------------------------
 
 
