@@ -228,7 +228,7 @@ def test_marl_eval_json_structure(written):
     assert len(final) == 1 and final[0] == pytest.approx(success_of(1, True, False) + 0.25)
 
 
-def test_no_pairs_no_section_and_no_stale_export(tmp_path):
+def test_no_pairs_names_the_unpaired_runs_and_leaves_no_stale_export(tmp_path):
     suite = write_suite(tmp_path / "suite")
     out = report.write_report(suite, tmp_path / "report")
     assert (out / report.TABLES / section.MARL_EVAL).exists()
@@ -238,4 +238,6 @@ def test_no_pairs_no_section_and_no_stale_export(tmp_path):
         (suite / name).rmdir()
     report.write_report(suite, out)
     assert not (out / report.TABLES / section.MARL_EVAL).exists()
-    assert f"## {section.TITLE}" not in (out / report.MARKDOWN).read_text()
+    text = (out / report.MARKDOWN).read_text()  # the attacked run is named, not dropped
+    scorecard = text.split(f"## {section.TITLE}", 1)[1]
+    assert "run(s) without the run they are compared with: grid/attacked (" in scorecard

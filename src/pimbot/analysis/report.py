@@ -52,6 +52,7 @@ from pimbot.analysis.sections import (
 )
 from pimbot.analysis.tables import Table, write_csv
 from pimbot.suites import sweep
+from pimbot.training import provenance as code_provenance
 from pimbot.training import store
 
 MARKDOWN = "report.md"
@@ -136,6 +137,16 @@ def provenance(table: run_table.RunTable, ctx: Context, when: str) -> Section:
         "config.json), not as a preset says.",
         "provenance_budget",
     )
+    changed = [r.name for r in table.records if code_provenance.differences(r.config)]
+    if changed:
+        text.append(
+            f"{len(changed)} run(s) were made by other code than this report's pimbot or "
+            "plugins (another version, or a plugin file that changed; their config.json says "
+            "how, docs/usage.md#provenance-the-code-a-run-was-made-with): "
+            + ", ".join(changed[:5])
+            + (f" and {len(changed) - 5} more" if len(changed) > 5 else "")
+            + "."
+        )
     return Section("Provenance", text=text, tables=[environment(table.records, when), budget])
 
 

@@ -37,7 +37,8 @@ def section(table: RunTable, ctx: Context) -> Section | None:
     card = sc.scorecard(table.records)
     if not card.comparisons:
         export.unlink(missing_ok=True)  # an earlier report's export must not outlive its runs
-        return None
+        note = sc.unmatched_note(card)  # attacked runs without a clean one are named
+        return Section(TITLE, text=[note]) if note else None
     export.parent.mkdir(parents=True, exist_ok=True)
     store.write_atomic(
         export, json.dumps(sc.marl_eval(table.records), separators=(",", ":")).encode()
