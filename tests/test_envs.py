@@ -661,3 +661,34 @@ def test_unknown_env_id_lists_registered_ids():
         envs.make("nope-v0")
     for env_id in envs.registered():
         assert env_id in str(error.value)
+
+
+@pytest.mark.parametrize(
+    "env_id", ["escape_room-v0", "ipd-v0", "stag_hunt-v0", "stag_hunt_matrix-v0"]
+)
+def test_every_built_in_env_names_its_observation_parts(env_id):
+    """policy.json's layout: parts that tile obs_dim, each bounded where the env knows it."""
+    from pimbot.envs.core import observation_parts
+
+    parts = observation_parts(envs.make(env_id))
+    assert len(parts) > 1 or env_id == "ipd-v0"
+    assert all(p.meaning and p.units and p.low == 0.0 for p in parts)
+    bounded = [p for p in parts if p.name != "incentives_given"]
+    assert all(p.high is not None and p.high <= 1.0 for p in bounded)
+
+
+def test_observation_parts_that_do_not_tile_the_observation_are_refused():
+    from pimbot.envs.core import ObsPart, observation_parts
+
+    class Short(EscapeRoom):
+        def obs_parts(self):
+            return (ObsPart("own_position", 3, "x", "one-hot", 0.0, 1.0),)
+
+    with pytest.raises(InvalidParameter, match=r"Short.obs_parts: sizes \[3\] add up to 3, not"):
+        observation_parts(Short())
+
+    class Plain(EscapeRoom):  # as a plugin env that declares no parts
+        obs_parts = None
+
+    (plain,) = observation_parts(Plain())
+    assert (plain.name, plain.size, plain.low, plain.high) == ("observation", 7, 0.0, None)

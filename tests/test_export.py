@@ -136,8 +136,15 @@ def test_policy_json_describes_the_models_and_the_run(lio_run):
     assert sidecar["actions"]["names"] == list(envs.spec(r.run.env_id).action_names)
     observation = sidecar["observation"]
     assert observation["shape"] == [r.env.obs_dim] and observation["dtype"] == "float32"
-    assert (observation["low"], observation["high"]) == (0.0, None)  # null: unbounded
-    assert observation["parts"][-1] == observation["parts"][-1] | {"start": 6, "stop": 7}
+    # every part with its slice, meaning, units and bounds; the incentives a LIO agent can
+    # have given by the last step bound its incentive part
+    most = r.learner_config.incentive_max * r.env.max_steps
+    assert (observation["low"], observation["high"]) == (0.0, most)
+    parts = observation["parts"]
+    assert [p["name"] for p in parts] == ["own_position", "other_position_1", "incentives_given"]
+    assert [(p["start"], p["stop"]) for p in parts] == [(0, 3), (3, 6), (6, 7)]
+    assert [(p["units"], p["low"], p["high"]) for p in parts[:2]] == [("one-hot", 0.0, 1.0)] * 2
+    assert parts[2]["high"] == most and "given" in parts[2]["meaning"] and parts[2]["units"]
     parity = sidecar["parity"]
     assert parity["observations_per_agent"] > export_check.CHECK_OBSERVATIONS
     assert max(parity["max_abs_difference"][k] for k in export_check.CHECKED) <= TOLERANCE

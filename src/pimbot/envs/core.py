@@ -14,6 +14,7 @@ from collections.abc import Callable, Mapping
 from typing import Any, ClassVar, Protocol
 
 import jax
+import numpy as np
 
 from pimbot.errors import InvalidParameter, check_int  # noqa: F401 (public here too)
 
@@ -44,7 +45,9 @@ class Env(Protocol):
     (a class attribute of a `TracedFields` env), numeric fields used only as values in
     `reset` and `step` (never in a shape or Python control flow): the env is a pytree whose
     leaves are those fields, a training program takes it as an argument, and runs that
-    differ only in them share one compiled program.
+    differ only in them share one compiled program. Optional: ``obs_parts()``, the
+    observation's parts in order (`ObsPart`: name, size, meaning, units, bounds), which an
+    export writes into policy.json (`observation_parts`).
     """
 
     num_agents: int
@@ -178,6 +181,44 @@ FALLBACK_EVAL_PERIOD = 1000
 """Training iterations between evaluations on an env that declares none."""
 FALLBACK_EVAL_EPISODES = 10
 """Episodes per evaluation point on an env that declares none."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ObsPart:
+    """One part of an agent's observation, as a robot must build it."""
+
+    name: str
+    size: int
+    meaning: str
+    units: str
+    low: float
+    high: float | None
+    """None: unbounded (the env cannot know the bound: an incentive sum, say)."""
+
+
+def observation_parts(env: Env) -> tuple[ObsPart, ...]:
+    """The parts of `env`'s observation (`obs_parts()` where it declares them), checked to
+    add up to `obs_dim`; one part, "observation", with `obs_bounds()`, where it does not.
+
+    Raises:
+        InvalidParameter: declared parts whose sizes do not add up to `obs_dim`.
+    """
+    declare = getattr(env, "obs_parts", None)
+    if declare is None:
+        low, high = env.obs_bounds()
+        meaning = "the env's observation of this agent (its docs say what each entry is)"
+        return (ObsPart("observation", env.obs_dim, meaning, "", low, _finite(high)),)
+    parts = tuple(declare())
+    if sum(p.size for p in parts) != env.obs_dim:
+        raise InvalidParameter(
+            f"{type(env).__name__}.obs_parts: sizes {[p.size for p in parts]} add up to "
+            f"{sum(p.size for p in parts)}, not obs_dim = {env.obs_dim}"
+        )
+    return parts
+
+
+def _finite(bound: float) -> float | None:
+    return bound if np.isfinite(bound) else None
 
 
 @dataclasses.dataclass(frozen=True)

@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from pimbot.envs.core import InvalidParameter, TracedFields, check_int
+from pimbot.envs.core import InvalidParameter, ObsPart, TracedFields, check_int
 
 LEVER, START, DOOR = 0, 1, 2
 NUM_POSITIONS = 3
@@ -105,6 +105,36 @@ class EscapeRoom(TracedFields):
     def obs_bounds(self) -> tuple[float, float]:
         # The incentive slots hold cumulative incentives filled by a learner.
         return 0.0, float("inf")
+
+    def obs_parts(self) -> tuple[ObsPart, ...]:
+        """Own position, each other agent's (agent-id order skipping this one), each a
+        one-hot over (lever, start, door); then the incentives given so far."""
+        where = "one-hot over (lever, start, door) at index 0, 1, 2"
+        own = ObsPart(
+            "own_position", NUM_POSITIONS, f"this agent's position, {where}", "one-hot", 0.0, 1.0
+        )
+        others = [
+            ObsPart(
+                f"other_position_{k}",
+                NUM_POSITIONS,
+                f"the position of the {k}. other agent in agent-id order skipping this "
+                f"one, {where}",
+                "one-hot",
+                0.0,
+                1.0,
+            )
+            for k in range(1, self.n_agents)
+        ]
+        given = ObsPart(
+            "incentives_given",
+            self.n_agents - 1,
+            "the incentives this agent has given each other agent so far this episode, in "
+            "agent-id order skipping itself (zeros where no agent gives incentives)",
+            "reward units, summed over the episode's steps",
+            0.0,
+            None,
+        )
+        return (own, *others, given)
 
     def _observe(self, positions: jax.Array) -> jax.Array:
         n = self.n_agents

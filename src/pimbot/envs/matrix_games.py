@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from pimbot.envs.core import check_int
+from pimbot.envs.core import ObsPart, check_int
 from pimbot.errors import check_choice
 
 COOPERATE, DEFECT = 0, 1
@@ -118,6 +118,27 @@ class MatrixGame:
 
     def obs_bounds(self) -> tuple[float, float]:
         return 0.0, 1.0
+
+    def obs_parts(self) -> tuple[ObsPart, ...]:
+        """The previous joint action, the same for every agent (action 0 = cooperate)."""
+        if self.joint_obs:
+            meaning = (
+                "the previous joint action as one one-hot: index 2·a0 + a1 for (a0, a1) in "
+                "(C, C), (C, D), (D, C), (D, D), and index 4 at the first step"
+            )
+            return (ObsPart("previous_joint_action", 5, meaning, "one-hot", 0.0, 1.0),)
+        previous = ObsPart(
+            "previous_actions",
+            NUM_ACTIONS * self.n_players,
+            "every player's previous action in player-id order, each a one-hot over the "
+            "two actions (0: cooperate, the stag; 1: defect, the hare); zeros at the first "
+            "step",
+            "one-hot",
+            0.0,
+            1.0,
+        )
+        first = ObsPart("first_step", 1, "1 at the episode's first step, else 0", "flag", 0.0, 1.0)
+        return previous, first
 
     def _observe(self, prev_actions: jax.Array, first: jax.Array) -> jax.Array:
         if self.joint_obs:

@@ -46,7 +46,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from pimbot.envs.core import InvalidParameter, check_int
+from pimbot.envs.core import InvalidParameter, ObsPart, check_int
 
 UP, DOWN, LEFT, RIGHT, STAY = 0, 1, 2, 3, 4
 MOVES = ((0, -1), (0, 1), (-1, 0), (1, 0), (0, 0))
@@ -127,6 +127,22 @@ class StagHunt:
     def _move(self, positions: jax.Array, actions: jax.Array) -> jax.Array:
         moved = positions + jnp.array(MOVES, jnp.int32)[actions]
         return jnp.clip(moved, 0, self.grid_size - 1)
+
+    def obs_parts(self) -> tuple[ObsPart, ...]:
+        """Cell (x, y) / grid size of this hunter, the other hunters (hunter-id order
+        skipping this one), the stag and each hare."""
+        units = f"grid cells / {self.grid_size} (the grid's size)"
+        high = (self.grid_size - 1) / self.grid_size
+
+        def cell(name: str, whose: str) -> ObsPart:
+            return ObsPart(name, 2, f"the (x, y) cell of {whose}", units, 0.0, high)
+
+        others = [
+            cell(f"other_hunter_{k}", f"the {k}. other hunter in id order skipping this one")
+            for k in range(1, self.n_players)
+        ]
+        hares = [cell(f"hare_{k}", f"hare {k}") for k in range(self.num_hares)]
+        return (cell("own_cell", "this hunter"), *others, cell("stag", "the stag"), *hares)
 
     def _observe(self, state: StagHuntState) -> jax.Array:
         n = self.n_players

@@ -41,6 +41,7 @@ import jax.numpy as jnp
 import pimbot
 from pimbot import envs
 from pimbot.atomic_files import staged_directory
+from pimbot.envs.core import observation_parts
 from pimbot.errors import InvalidParameter
 from pimbot.robot.export_check import check_parity
 from pimbot.robot.exportable import (
@@ -186,35 +187,37 @@ def model_io(model) -> dict[str, list[dict[str, Any]]]:
     }
 
 
-def observation_layout(env, spec: envs.EnvSpec) -> dict[str, Any]:
-    """Shape, dtype, bounds and the parts of one agent's observation (as the env declares
-    them: `Env.obs_bounds`, `Env.incentive_obs`)."""
-    low, high = env.obs_bounds()
-    n, size = env.num_agents, env.obs_dim
-    own = size - (n - 1) if env.incentive_obs else size
-    parts = [
-        {
-            "start": 0,
-            "stop": own,
-            "meaning": f"{spec.env_id}'s observation of this agent (docs/environments.md)",
-        }
-    ]
-    if env.incentive_obs:
+def observation_layout(env, learner_config: Any = None) -> dict[str, Any]:
+    """Shape, dtype, bounds and every part of one agent's observation, each with its slice
+    (`start`, `stop`), meaning, units and bounds (`envs.core.observation_parts`). An
+    incentive part's upper bound, which the env cannot know, is the learner's per-step
+    bound (`incentive_max`) times the episode's steps where the learner has one."""
+    per_step = getattr(learner_config, "incentive_max", None)
+    parts, start = [], 0
+    for part in observation_parts(env):
+        high = part.high
+        if high is None and part.name == "incentives_given" and per_step is not None:
+            high = float(per_step) * env.max_steps
         parts.append(
             {
-                "start": own,
-                "stop": size,
-                "meaning": "the incentives this agent has given each other agent so far this "
-                "episode, in agent-id order skipping itself (the caller sums what the "
-                "incentive models return; zeros where no agent gives incentives)",
+                "name": part.name,
+                "start": start,
+                "stop": start + part.size,
+                "meaning": part.meaning,
+                "units": part.units,
+                "low": part.low,
+                "high": high,  # JSON null: unbounded
             }
         )
+        start += part.size
+    highs = [p["high"] for p in parts]
     return {
-        "shape": [size],
+        "shape": [env.obs_dim],
         "dtype": "float32",
-        "low": low,
-        "high": high,  # JSON null: unbounded
+        "low": min(p["low"] for p in parts),
+        "high": None if None in highs else max(highs),
         "parts": parts,
+        "layout": "docs/environments.md; one row per agent, the parts in this order",
     }
 
 
@@ -251,7 +254,7 @@ def describe(loaded: runs.LoadedRun, seed_index: int, models, parity) -> dict[st
         "learner": {"name": r.run.learner, "config": dataclasses.asdict(r.learner_config)},
         "run_config": description["run_config"],
         "adversary": adversary,
-        "observation": observation_layout(env, spec),
+        "observation": observation_layout(env, r.learner_config),
         "actions": {"count": env.num_actions, "names": names, "dtype": "int32"},
         "acting": "sample the action index from `probabilities` (the trained policy at "
         "epsilon = 0, as pimbot evaluates it); argmax for a greedy policy. The models hold "
