@@ -388,3 +388,17 @@ def test_a_config_json_edited_after_the_run_is_named_in_one_line(
     (copy / store.CONFIG).write_text(json.dumps(config, default=str))
     with pytest.raises(store.DamagedRunDir, match="does not match the checkpoint"):
         runs.load_run(copy)
+
+
+def test_a_run_made_with_a_plugin_not_loaded_now_names_the_flag_that_loads_it(tmp_path):
+    """`pimbot export` (or a resume) of a plugin learner's run without `--plugin` names the
+    file its config.json recorded, before the learner is looked up ("unknown learner")."""
+    from pimbot.training import provenance
+
+    run = tmp_path / "run"
+    run.mkdir()
+    record = {"plugin": "mine", "file": "/somewhere/mine.py", "sha256": "ab" * 32}
+    (run / "config.json").write_text(json.dumps({"plugins": [record]}))
+    with pytest.raises(provenance.CodeChanged, match=r"add --plugin /somewhere/mine.py to export"):
+        provenance.check(run, accept=False, doing="export")
+    assert provenance.check(run, accept=True, doing="export")  # the change, accepted

@@ -77,6 +77,23 @@ def changes(config: dict[str, Any]) -> list[str]:
     return found
 
 
+def unloaded_plugins(config: dict[str, Any]) -> list[str]:
+    """The files of the plugins `config` recorded that this process has not loaded (by
+    path or by the same code elsewhere), as they were recorded."""
+    now = plugins.provenance()
+    files = {r.get("file") for r in now}
+    digests = {r.get("sha256") for r in now if r.get("sha256")}
+    recorded = config.get("plugins")
+    return [
+        str(r["file"])
+        for r in (recorded if isinstance(recorded, list) else [])
+        if isinstance(r, dict)
+        and r.get("file")
+        and r["file"] not in files
+        and r.get("sha256") not in digests
+    ]
+
+
 def check(run_dir: Path, accept: bool, doing: str = "resume") -> list[str]:
     """Refuses (CodeChanged, one line) to `doing` a run whose config.json records other
     code than this process's, unless `accept`; returns the changes (empty: the same code).
@@ -84,7 +101,15 @@ def check(run_dir: Path, accept: bool, doing: str = "resume") -> list[str]:
     path = Path(run_dir) / store.CONFIG
     if not path.is_file():
         return []
-    found = changes(store.read_json(path))
+    config = store.read_json(path)
+    found = changes(config)
+    missing = unloaded_plugins(config)
+    if missing and not accept:  # a plugin the run was made with and this process lacks
+        hint = " ".join(f"--plugin {file}" for file in missing)
+        raise CodeChanged(
+            f"{path}: the run was made with plugin(s) not loaded now; add {hint} to "
+            f"{doing} it (or {FLAG} to go on without them)"
+        )
     if found and not accept:
         raise CodeChanged(
             f"{path}: the run was made with {'; '.join(found)}; {doing} it with the code it "
