@@ -55,6 +55,7 @@ import import_logs  # noqa: E402  (this folder's shipped-log importer)
 from pimbot import envs  # noqa: E402
 from pimbot.analysis import original_code  # noqa: E402
 from pimbot.analysis.runs import env_label  # noqa: E402
+from pimbot.suites.presets import CODE_ER_RECIPROCATOR  # noqa: E402
 from pimbot.training.config import RunConfig  # noqa: E402
 
 RUNS = Path("/work/runs/original")
@@ -86,11 +87,22 @@ IPD_HPARAMS = (
 agent's (PyTorch's initialisation, the Bernoulli actor, VoI read after the earlier agents'
 in-place reciprocal reward), at the original's 2048 games per update; the other IPD
 defaults are already the original's (width 2, exact VoI, one-step grudge)."""
-ER_HPARAMS = (("grudge", "petty"), ("num_envs", 1))
-"""The ER script's learner in pimbot's words: the registry's ER settings are the script's
-(lr 1e-4, γ 0.99, K 10, clip 0.1, entropy 0.01, w 5, VoI lr 1e-3), its 'linear' balance is
-``grudge=petty``, one episode per update (the suite's rec_er21_code_e1 row, which adds
-``voi_minibatch_rows=distinct_weighted``, the same loss summed in another order)."""
+ER_HPARAMS = tuple(sorted(CODE_ER_RECIPROCATOR))
+"""The ER script's learner in pimbot's words: the suite's rec_er*_code_e1 rows, which
+stand for this script (`pimbot.suites.presets.CODE_ER_RECIPROCATOR`): the registry's ER
+settings (lr 1e-4, γ 0.99, K 10, clip 0.1, entropy 0.01, w 5, VoI lr 1e-3), its 'linear'
+balance as ``grudge=petty``, one episode per update. So `runs.same_settings` pairs this run
+with those rows. The script's own VoI refit (every episode, the last 5 episodes, minibatches
+of 16, 10 epochs over at most 64 samples) has no exact pimbot equivalent (``ER_VOI_NOTE``)."""
+ER_VOI_NOTE = (
+    "identity = the suite's rec_er21_code_e1 row (pimbot.suites.presets."
+    "CODE_ER_RECIPROCATOR), pimbot's stand-in for this script; the script's VoI refit "
+    "differs from pimbot's voi_* options: every episode (target_period 1), on the last 5 "
+    "episodes (target_buffer_size 5, shorter episodes zero-padded to the longest), 10 "
+    "epochs (target_epochs) over at most 4 x 16 samples drawn without replacement, "
+    "minibatches of 16; pimbot refits every voi_refit_period = 2 updates on voi_history = "
+    "3 batches with voi_steps = 10 draws of voi_batch = 512"
+)
 GROUP_LIO = "made_here_er_25k"
 GROUP_RECIPROCATOR = "made_here_reciprocator"
 
@@ -532,6 +544,7 @@ def import_reciprocator_er(runs: Path, out: Path, tree: Path) -> dict[str, Any] 
             "a750298's lio/ (see sources)",
         ],
         "sources": sources,
+        "learner_config_note": ER_VOI_NOTE,
         "environment": (
             f"Python {first['python']}, torch {first['torch']} on the CPU, "
             f"{first['torch_threads']} thread (setup_reciprocator.sh's venv)"
