@@ -739,6 +739,10 @@ def test_c7_code_batch_shortfall_is_classified_by_the_original_code_at_its_setti
     judged = dict(reciprocators.c7([ours], (short,)).verdict.parts)[part]
     assert judged.causes == (verdicts.PAPER_CODE,), judged
     assert "the original code (reciprocators/original_short, 5 seeds, the same" in judged.reason
+    assert "does not reach 0.8 either; ours do not differ from it" in judged.reason
+    random_level = run("original_random", lambda s: 0.7 + 0.01 * (s % 3), seeds=5)
+    judged = dict(reciprocators.c7([ours], (random_level,)).verdict.parts)[part]
+    assert judged.causes == (verdicts.PAPER_CODE,) and "ours differ from it" in judged.reason
     solved = run("original_solved", 0.95, seeds=5)
     judged = dict(reciprocators.c7([ours], (solved,)).verdict.parts)[part]
     assert judged.causes == (verdicts.IMPLEMENTATION,), judged

@@ -18,7 +18,7 @@ from pimbot.analysis.runs import (
     settings_difference,
 )
 from pimbot.analysis.tables import INTERVAL, Table, difference, estimate
-from pimbot.statistics import interval_text
+from pimbot.statistics import difference_p_value, interval_text
 
 GROUP = "reciprocators"
 LEARNER = "reciprocator"
@@ -371,8 +371,8 @@ def against_original(reason: str, originals, run: RunRecord) -> verdicts.Verdict
     """A clean shortfall of `run` below BASELINE, its cause from the original code's run at
     the same settings (`judging.disagreement`): above BASELINE by its interval, the original
     reproduces the paper (pimbot's seeds tested against its seeds); at or below it, the
-    paper contradicts its own code; undecided, or no such run, inconclusive naming what
-    there is."""
+    paper contradicts its own code, saying whether ours differ from the original's;
+    undecided, or no such run, inconclusive naming what there is."""
     same, text = original_code(originals, run)
     if same is None:
         return judging.disagreement(f"{reason}; {text or CODE_LOGS}", None)
@@ -381,7 +381,18 @@ def against_original(reason: str, originals, run: RunRecord) -> verdicts.Verdict
     if reached is not None and reached.kind == verdicts.INCONCLUSIVE:
         return verdicts.inconclusive(f"{reason}; {text}: its interval includes {BASELINE:g}")
     ours = run.per_seed("eval/success")
-    return judging.disagreement(f"{reason}; {text}", reached is not None, ours, theirs)
+    if reached is None:  # the original code falls short of the paper too
+        p = difference_p_value(ours, theirs)
+        relation = (
+            f"ours differ from it (permutation test of the means, p = {p:.3f})"
+            if p < judging.DIFFERS_P
+            else f"ours do not differ from it (p = {p:.2f})"
+        )
+        return verdicts.refuted(
+            verdicts.PAPER_CODE,
+            f"{reason}; {text}: the original code does not reach {BASELINE:g} either; " + relation,
+        )
+    return judging.disagreement(f"{reason}; {text}", True, ours, theirs)
 
 
 def baseline_shortfall(runs, clean, base, originals=()) -> verdicts.Verdict:
