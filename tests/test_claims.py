@@ -740,6 +740,9 @@ def test_c7_code_batch_shortfall_is_classified_by_the_original_code_at_its_setti
     assert judged.causes == (verdicts.PAPER_CODE,), judged
     assert "the original code (reciprocators/original_short, 5 seeds, the same" in judged.reason
     assert "does not reach 0.8 either; ours do not differ from it" in judged.reason
+    few = run("original_few", 0.75, seeds=3)  # too few seeds to name a cause
+    judged = dict(reciprocators.c7([ours], (few,)).verdict.parts)[part]
+    assert judged.kind == verdicts.INCONCLUSIVE and "3 original seeds are too few" in judged.reason
     random_level = run("original_random", lambda s: 0.7 + 0.01 * (s % 3), seeds=5)
     judged = dict(reciprocators.c7([ours], (random_level,)).verdict.parts)[part]
     assert judged.causes == (verdicts.PAPER_CODE,) and "ours differ from it" in judged.reason

@@ -18,7 +18,7 @@ from pimbot.analysis.runs import (
     settings_difference,
 )
 from pimbot.analysis.tables import INTERVAL, Table, difference, estimate
-from pimbot.statistics import difference_p_value, interval_text
+from pimbot.statistics import MIN_SEEDS_FOR_CI, difference_p_value, interval_text
 
 GROUP = "reciprocators"
 LEARNER = "reciprocator"
@@ -377,6 +377,11 @@ def against_original(reason: str, originals, run: RunRecord) -> verdicts.Verdict
     if same is None:
         return judging.disagreement(f"{reason}; {text or CODE_LOGS}", None)
     theirs = same.per_seed("eval/success")
+    if not judging.enough_seeds(len(theirs)):
+        return verdicts.inconclusive(
+            f"{reason}; {text}: {len(theirs)} original seeds are too few to name a cause "
+            f"(at least {MIN_SEEDS_FOR_CI})"
+        )
     reached = judging.above(estimate(theirs), BASELINE, "the original code's clean success")
     if reached is not None and reached.kind == verdicts.INCONCLUSIVE:
         return verdicts.inconclusive(f"{reason}; {text}: its interval includes {BASELINE:g}")
