@@ -14,7 +14,6 @@ from pimbot.analysis.runs import (
     RunTable,
     condition_key,
     natural_key,
-    same_settings,
     settings_difference,
 )
 from pimbot.analysis.tables import INTERVAL, Table, difference, estimate
@@ -340,18 +339,12 @@ def code_batch_part(run: RunRecord, originals: tuple[RunRecord, ...] = ()) -> ve
 
 def original_code(originals, run: RunRecord) -> tuple[RunRecord | None, str]:
     """The original code's run at `run`'s exact settings (None: there is none) and a clause
-    naming every original-code run of `run`'s env, learner and condition with its final
-    success, and for one at other settings what differs (`settings_difference`)."""
-    same = [o for o in originals if same_settings(o, run)]
-    near = [
-        o
-        for o in originals
-        if o.env_key == run.env_key
-        and o.learner == run.learner
-        and o.condition == run.condition
-        and not same_settings(o, run)
-        and o.per_seed("eval/success").size
-    ]
+    naming every original-code run of `run`'s env, learner and attack with its final
+    success, and for one at other settings what differs (`RunTable.originals_for` and
+    `originals_elsewhere`, `settings_difference`)."""
+    table = RunTable((), tuple(originals))
+    same = table.originals_for(run)
+    near = [o for o in table.originals_elsewhere(run) if o.per_seed("eval/success").size]
     texts = [
         f"the original code ({o.name}, {o.seeds} seeds"
         + (f"; {settings_difference(o, run)}" if o in near else ", the same settings")
