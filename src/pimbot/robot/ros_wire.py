@@ -27,7 +27,9 @@ Every message a `Node` takes goes through `Reader.take`, the one door in: a samp
 does not deserialize, or that the reader's `parse` refuses (`Dropped`), is dropped and
 counted by topic and reason (`Node.dropped_counts`), never raised; text is parsed as JSON
 only within `bounded_json`'s size and nesting bounds. `Node.rivals` reads DDS discovery for
-writers of other participants on given topics, named by their host, process and pid.
+writers of other participants on given topics, named by their host, process and pid;
+`Node.readers` for their readers, with each reader's DDS type name (`ros_type_name` gives it
+as ROS names it, `cmd_vel_distros` the distros whose cmd_vel type it is).
 
 Cyclone DDS is configured by `CYCLONEDDS_URI`; `loopback_config` gives one for a single
 machine without multicast (unicast discovery to 127.0.0.1). No `from __future__ import
@@ -45,6 +47,7 @@ from cyclonedds.builtin import (
     BuiltinDataReader,
     BuiltinTopicDcpsParticipant,
     BuiltinTopicDcpsPublication,
+    BuiltinTopicDcpsSubscription,
 )
 from cyclonedds.core import InstanceState, Policy, Qos
 from cyclonedds.domain import DomainParticipant
@@ -172,6 +175,27 @@ def check_distro(distro: str) -> str:
 def cmd_vel_struct(distro: str) -> type[IdlStruct]:
     """The type a TurtleBot3 of `distro` takes on cmd_vel."""
     return TwistStamped if check_distro(distro) == "jazzy" else Twist
+
+
+def cmd_vel_distros(dds_type: str) -> list[str]:
+    """The distros whose cmd_vel type has the DDS type name `dds_type` (none for another)."""
+    return [d for d in ROS_DISTROS if cmd_vel_struct(d).__idl_typename__ == dds_type]
+
+
+MAX_TYPE_NAME = 120
+"""The longest type name `ros_type_name` gives back (discovery data is anyone's text)."""
+
+
+def ros_type_name(dds_type) -> str:
+    """A DDS type name as ROS 2 names it (`geometry_msgs::msg::dds_::Twist_` ->
+    `geometry_msgs/msg/Twist`); any other type name as it is, "" for one that is no text;
+    at most `MAX_TYPE_NAME` characters."""
+    if not isinstance(dds_type, str):
+        return ""
+    parts = dds_type.split("::")
+    if len(parts) == 4 and parts[2] == "dds_" and len(parts[3]) > 1 and parts[3][-1] == "_":
+        dds_type = f"{parts[0]}/{parts[1]}/{parts[3][:-1]}"
+    return dds_type[:MAX_TYPE_NAME]
 
 
 def dds_topic(ros_topic: str) -> str:
@@ -344,8 +368,10 @@ class Node:
         self.foreign: dict[str, set[str]] = {}
         """Participant name -> the topics where its messages were dropped (`own_only`)."""
         self._publications = None
+        self._subscriptions = None
         self._participants = None
         self._writers: dict = {}
+        self._readers: dict = {}
         self._names: dict = {}
 
     def _topic(self, ros_topic: str, struct: type[IdlStruct]) -> Topic:
@@ -400,19 +426,51 @@ class Node:
         name: [its topics]} (empty when none; never raises on discovery data)."""
         if self._publications is None:
             self._publications = BuiltinDataReader(self.participant, BuiltinTopicDcpsPublication)
-        for sample in self._publications.take(N=256):
-            alive = sample.sample_info.instance_state == InstanceState.Alive
-            if alive:
-                self._writers[sample.key] = (sample.participant_key, sample.topic_name)
-            else:
-                self._writers.pop(sample.key, None)
+        _follow(self._publications, self._writers)
+        found: dict[str, list[str]] = {}
+        for participant, topic, _ in self._others(self._writers, ros_topics):
+            found.setdefault(self.participant_name(participant), []).append(topic)
+        return {name: sorted(set(topics)) for name, topics in found.items()}
+
+    def readers(self, ros_topics) -> list[tuple[str, str, str]]:
+        """Readers of other participants on `ros_topics`, from DDS discovery: (participant
+        name, ROS topic, DDS type name; "" where discovery gives none), sorted, each once
+        (never raises on discovery data)."""
+        if self._subscriptions is None:
+            self._subscriptions = BuiltinDataReader(self.participant, BuiltinTopicDcpsSubscription)
+        _follow(self._subscriptions, self._readers)
+        found = {
+            (self.participant_name(participant), topic, type_name)
+            for participant, topic, type_name in self._others(self._readers, ros_topics)
+        }
+        return sorted(found)
+
+    def _others(self, endpoints: dict, ros_topics) -> list[tuple]:
+        """(participant key, ROS topic, type name) of each endpoint in `endpoints` (discovery
+        samples) of another participant on one of `ros_topics`."""
         wanted = {dds_topic(t): t for t in ros_topics}
         own = self.participant.guid
-        found: dict[str, list[str]] = {}
-        for participant, topic in self._writers.values():
-            if participant != own and topic in wanted:
-                found.setdefault(self.participant_name(participant), []).append(wanted[topic])
-        return {name: sorted(set(topics)) for name, topics in found.items()}
+        found = []
+        for sample in endpoints.values():
+            participant = getattr(sample, "participant_key", None)
+            topic = getattr(sample, "topic_name", None)
+            if participant != own and isinstance(topic, str) and topic in wanted:
+                type_name = getattr(sample, "type_name", None)
+                found.append(
+                    (participant, wanted[topic], type_name if isinstance(type_name, str) else "")
+                )
+        return found
+
+
+def _follow(builtin: BuiltinDataReader, endpoints: dict) -> None:
+    """Brings `endpoints` ({endpoint key: its discovery sample}) up to date with what
+    `builtin` (a discovery reader) has seen since: new endpoints in, gone ones out."""
+    for sample in builtin.take(N=256):
+        info = getattr(sample, "sample_info", None)
+        if getattr(info, "instance_state", None) == InstanceState.Alive:
+            endpoints[sample.key] = sample
+        else:
+            endpoints.pop(getattr(sample, "key", None), None)
 
 
 @dataclasses.dataclass

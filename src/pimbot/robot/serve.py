@@ -39,6 +39,12 @@ Failing safe, as ROS 2's twist_mux and the TurtleBot3 bring-up do with stale inp
   for any reason: the episode's end, Ctrl-C or SIGTERM, an error, lost odometry, or a second
   controller — a writer of another DDS participant on the robots' cmd_vel topics, found by
   DDS discovery; another participant's incentive messages are dropped and it is named once.
+
+A robot built for the other distro reads its cmd_vel with the other type, and DDS never
+matches a reader and a writer of different types: that robot silently gets no command.
+Serve reads DDS discovery for the readers on the robots' cmd_vel topics and says in one
+line, once per reader, when one takes another type than serve writes (`type_mismatch`:
+the other distro's type, with the `--ros-distro` that fixes it, or neither's).
 """
 
 from __future__ import annotations
@@ -90,6 +96,8 @@ INCENTIVE_BYTES = 4096
 """The largest incentive message (its JSON is about 200 bytes)."""
 RIVAL_CHECK_S = 0.05
 """Wall seconds between two looks at DDS discovery for a second controller."""
+TYPE_CHECK_S = 1.0
+"""Wall seconds between two looks at DDS discovery for cmd_vel readers of another type."""
 ACK_S = 0.5
 """Wall seconds the zero commands of a stop wait for the robots to acknowledge them."""
 
@@ -159,6 +167,8 @@ class ServeReport:
     """Commands made safe on the way out: robots stopped (not finite) or clamped."""
     stops: list[str] = dataclasses.field(default_factory=list)
     """Each time every robot got a zero command, and why."""
+    type_mismatches: list[str] = dataclasses.field(default_factory=list)
+    """The lines said about readers of a robot's cmd_vel with another type (`type_mismatch`)."""
 
     def summary(self) -> dict:
         out = dataclasses.asdict(self)
@@ -246,6 +256,28 @@ def _incentive_parser(n: int, recipient: int, authenticated: bool) -> Callable:
         return incentive
 
     return parse
+
+
+def type_mismatch(topic: str, reader: str, dds_type: str, distro: str) -> str | None:
+    """The line that says `reader` (a participant's name) reads `topic` (a cmd_vel) with
+    DDS type `dds_type` where serve writes `distro`'s type, so that it gets no command: with
+    the `--ros-distro` that fixes it when it is the other distro's type. None when the types
+    are the same or the reader's type is unknown ("")."""
+    ours = ros_wire.cmd_vel_struct(distro).__idl_typename__
+    if not dds_type or dds_type == ours:
+        return None
+    theirs, serves = ros_wire.ros_type_name(dds_type), ros_wire.ros_type_name(ours)
+    what, fix = "neither distro's cmd_vel type", ""
+    for other in ros_wire.cmd_vel_distros(dds_type):
+        name = other.capitalize()
+        what, fix = (
+            f"{name}'s cmd_vel type",
+            f"; for a {name} robot run serve with --ros-distro {other}",
+        )
+    return (
+        f"{topic} is read by {reader} as {theirs} ({what}), serve writes {serves} "
+        f"(--ros-distro {distro}): DDS never matches the two, so it gets no command{fix}"
+    )
 
 
 class IncentiveLink:
@@ -355,6 +387,9 @@ class ControllerWire:
         self.stops: list[str] = []
         self.named: set[str] = set()
         self.next_look = 0.0
+        self.type_mismatches: list[str] = []
+        """The lines said about cmd_vel readers of another type (`type_mismatch`)."""
+        self.next_type_look = 0.0
 
     # -- in --
 
@@ -370,7 +405,12 @@ class ControllerWire:
                 self.stamps[i], self.poses[i] = stamp, pose
         for opening in self.gate.take():
             self.gate_opening = opening
+        self.look_at_discovery(now)
+
+    def look_at_discovery(self, now: float) -> None:
+        """The checks of DDS discovery, each at its own pace."""
         self.look_for_rivals(now)
+        self.look_for_other_types(now)
 
     def look_for_rivals(self, now: float) -> None:
         """Raises SecondController when another participant publishes cmd_vel for these
@@ -395,6 +435,18 @@ class ControllerWire:
                     f"another controller, {name}, publishes incentive messages on "
                     f"{', '.join(topics)}: its messages are dropped"
                 )
+
+    def look_for_other_types(self, now: float) -> None:
+        """Says once per reader, in one line, when another participant reads a robot's
+        cmd_vel with another type than serve writes (DDS discovery, every `TYPE_CHECK_S`)."""
+        if now < self.next_type_look:
+            return
+        self.next_type_look = now + TYPE_CHECK_S
+        for reader, topic, dds_type in self.node.readers(self.cmd_topics):
+            line = type_mismatch(topic, reader, dds_type, self.distro)
+            if line is not None and line not in self.type_mismatches:
+                self.type_mismatches.append(line)
+                self.say(line)
 
     @property
     def now_ns(self) -> int:
@@ -445,7 +497,7 @@ class ControllerWire:
         while time.perf_counter() < deadline:
             for layout in self.layout.take():
                 return layout
-            self.look_for_rivals(time.perf_counter())
+            self.look_at_discovery(time.perf_counter())
             time.sleep(0.01)
         last = self.node.last_drop.get(ros_wire.LAYOUT_TOPIC)
         dropped = f" (dropped: {last})" if last else ""
@@ -689,6 +741,7 @@ class _Played:
             dropped=ends.node.dropped_counts(),
             commands_limited=dict(ends.limited),
             stops=list(ends.stops),
+            type_mismatches=list(ends.type_mismatches),
         )
 
 
