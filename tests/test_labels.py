@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from pimbot.analysis.plots import run_label
+from pimbot.analysis.runs import run_label
 
 
 def _run_dir(tmp_path, name, defenses):

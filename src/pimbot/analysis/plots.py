@@ -22,16 +22,9 @@ from matplotlib.patches import Patch  # noqa: E402
 from pimbot import statistics  # noqa: E402
 from pimbot.analysis.curves import Curves, read_curves  # noqa: E402
 from pimbot.analysis.document import count_text  # noqa: E402
-from pimbot.analysis.runs import (  # noqa: E402
-    RunRecord,
-    condition_key,
-    condition_label,
-    defense_label,
-    env_label,
-)
+from pimbot.analysis.runs import RunRecord, condition_key, run_label  # noqa: E402
 from pimbot.analysis.tables import check_metrics  # noqa: E402
 from pimbot.atomic_files import save_figure  # noqa: E402
-from pimbot.training import store  # noqa: E402
 
 RANDOM_POLICY = {
     "ER(2,1)": {"eval/success": 0.72, "eval/return_ratio": 0.38},
@@ -215,41 +208,6 @@ def save(fig, path: Path, dpi: int = 110, svg: bool = True) -> None:
 
 
 # --- `pimbot plot` ---------------------------------------------------------------------
-
-
-def run_label(run_dir: Path) -> str:
-    """ "lio ER(2,1) reverse + incentive_guard": learner, env and condition (the attack and
-    the parameters the run set), the defenses (`defense_label`), then what else tells runs
-    of one setting apart."""
-    config = store.read_json(run_dir / store.CONFIG)
-    identity = config["identity"]
-    env = env_label(config["env"]["id"], config["env"]["params"])
-    given = config.get("run_config", {}).get("attack_params", ())
-    condition = condition_label(identity["attack"], identity["attack_params"], given)
-    label = f"{identity['learner']} {env} {condition}"
-    defenses = config.get("run_config", {}).get("defenses", ())
-    if defenses:
-        label += f" + {defense_label(defenses)}"
-    first, count = config["identity"]["first_seed"], config["identity"]["seeds"]
-    if first:
-        label += f" seeds {first}–{first + count - 1}"
-    if incentive_updates(config) == "own":
-        label += " own-η"
-    return label
-
-
-def incentive_updates(config: dict[str, Any]) -> str | None:
-    """ "shared" or "own": how a LIO run's givers updated incentives where the two differ
-    (N ≥ 3); None otherwise. Run directories written before the option had a name carry
-    `original_shared_incentive_updates` (true = shared, false = own)."""
-    learner_config = config["identity"].get("learner_config", {})
-    if config.get("env", {}).get("num_agents", 0) < 3:
-        return None
-    if "incentive_updates" in learner_config:
-        return learner_config["incentive_updates"]
-    if "original_shared_incentive_updates" in learner_config:
-        return "shared" if learner_config["original_shared_incentive_updates"] else "own"
-    return None
 
 
 PLOTTED = ("eval/success", "eval/return_ratio")

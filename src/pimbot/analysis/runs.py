@@ -284,6 +284,41 @@ def hparams_label(hparams: list | tuple) -> str:
     return ", ".join(f"{k}={_value(v)}" for k, v in sorted(hparams))
 
 
+def run_label(run_dir: Path) -> str:
+    """ "lio ER(2,1) reverse + incentive_guard": learner, env and condition (the attack and
+    the parameters the run set), the defenses (`defense_label`), then what else tells runs
+    of one setting apart."""
+    config = store.read_json(run_dir / store.CONFIG)
+    identity = config["identity"]
+    env = env_label(config["env"]["id"], config["env"]["params"])
+    given = config.get("run_config", {}).get("attack_params", ())
+    condition = condition_label(identity["attack"], identity["attack_params"], given)
+    label = f"{identity['learner']} {env} {condition}"
+    defenses = config.get("run_config", {}).get("defenses", ())
+    if defenses:
+        label += f" + {defense_label(defenses)}"
+    first, count = config["identity"]["first_seed"], config["identity"]["seeds"]
+    if first:
+        label += f" seeds {first}–{first + count - 1}"
+    if incentive_updates(config) == "own":
+        label += " own-η"
+    return label
+
+
+def incentive_updates(config: dict[str, Any]) -> str | None:
+    """ "shared" or "own": how a LIO run's givers updated incentives where the two differ
+    (N ≥ 3); None otherwise. Run directories written before the option had a name carry
+    `original_shared_incentive_updates` (true = shared, false = own)."""
+    learner_config = config["identity"].get("learner_config", {})
+    if config.get("env", {}).get("num_agents", 0) < 3:
+        return None
+    if "incentive_updates" in learner_config:
+        return learner_config["incentive_updates"]
+    if "original_shared_incentive_updates" in learner_config:
+        return "shared" if learner_config["original_shared_incentive_updates"] else "own"
+    return None
+
+
 PALETTE = (
     "#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#bcbd22",
     "#17becf", "#393b79", "#637939", "#8c6d31", "#843c39", "#7b4173", "#3182bd", "#e6550d",

@@ -23,6 +23,7 @@ import numpy as np
 
 from pimbot import statistics
 from pimbot.analysis.curves import Curves, read_curves
+from pimbot.analysis.runs import run_label
 from pimbot.errors import InvalidParameter
 from pimbot.training import store
 from pimbot.training.summary import FINAL_WINDOW
@@ -230,7 +231,6 @@ def summary_table(run_dirs: list[Path], metrics: tuple[str, ...] = ()) -> str:
     Raises:
         InvalidParameter: a name in `metrics` no run logged (before anything is made).
     """
-    from pimbot.analysis.plots import run_label
     from pimbot.training.summary import summarize
 
     curves = [read_curves(run_dir) for run_dir in run_dirs] if metrics else []

@@ -6,7 +6,14 @@ import numpy as np
 
 from pimbot.analysis import plots
 from pimbot.analysis.document import Context, Figure, Section, final_window_text, seeds_text
-from pimbot.analysis.runs import CLEAN, RunRecord, RunTable, condition_key, natural_key
+from pimbot.analysis.runs import (
+    CLEAN,
+    RunRecord,
+    RunTable,
+    condition_key,
+    incentive_updates,
+    natural_key,
+)
 from pimbot.analysis.sections import attack_claims
 from pimbot.analysis.tables import INTERVAL, Table, difference, estimate, fmt
 from pimbot.statistics import interval_text
@@ -95,9 +102,7 @@ def intro(runs: list[RunRecord]) -> str:
     attacked = sorted({r.adversary for r in runs if r.attack is not None})
     adversary = ", ".join(f"agent {a}" for a in attacked) or "none (no attacked run)"
     by_updates = {
-        kind: sorted(
-            {r.env for r in runs if plots.incentive_updates(r.config) == kind}, key=natural_key
-        )
+        kind: sorted({r.env for r in runs if incentive_updates(r.config) == kind}, key=natural_key)
         for kind in ("shared", "own")
     }
     text = (
