@@ -32,6 +32,7 @@ NAMES_MAY_APPEAR_IN = {
     "profiling/runner.py": "the paired profile compares the CONTROLLERS by name",
     # copies the command line keeps so that --help imports no JAX; tests check they are equal
     "cli/commands.py": "CONTROLLERS and the default learner, checked equal by tests",
+    "cli/options.py": "CHECK_ENV, the env `pimbot check` runs on where the file names none",
 }
 """Modules allowed to write a registered name (the attack and defense modules name theirs
 in their class bodies, `name = "..."`, which the scan knows as the definition)."""

@@ -28,6 +28,7 @@ import sys
 import pimbot
 from pimbot import plugins
 from pimbot.cli import commands
+from pimbot.cli.interrupts import Terminated, raise_terminated
 from pimbot.cli.parsing import (
     HELP,
     UsageError,
@@ -212,19 +213,10 @@ def run(argv: list[str]) -> int:
     return parsed.command.run(loaded)
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, handled like Ctrl-C: the checkpoint and metrics already written stay
-    consistent (each chunk's are written atomically), so the same command resumes."""
-
-
-def _terminate(signum, frame) -> None:
-    raise Terminated
-
-
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     if signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:  # not inside a host's own handler
-        signal.signal(signal.SIGTERM, _terminate)
+        signal.signal(signal.SIGTERM, raise_terminated)
     try:
         return run(argv)
     except (UsageError, InvalidParameter, plugins.PluginError) as error:

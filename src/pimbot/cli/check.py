@@ -7,8 +7,13 @@ every learner and env trained), 1 with one line per problem otherwise, 2 for bad
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from pimbot import plugins
-from pimbot.cli.commands import CHECK_ENV, Check
+from pimbot.cli.options import CHECK_ENV
+
+if TYPE_CHECKING:  # the command class runs this module: it is imported for its type only
+    from pimbot.cli.commands import Check
 
 
 def cmd_check(args: Check) -> int:

@@ -15,18 +15,15 @@ so `--help` lists them; tests/test_cli.py checks them against the modules that u
 """
 
 import dataclasses
-from collections.abc import Callable
-from typing import Annotated, Any, ClassVar, Literal
+from typing import Annotated, ClassVar, Literal
 
 import tyro
 
+from pimbot.cli.options import PAIRS, FromRun, Registered, Spelling
 from pimbot.cli.robot import RENDERERS
 from pimbot.contracts.params import check_number
 from pimbot.errors import InvalidParameter, check_int
 from pimbot.robot.rosbag import BAG_STORAGES, ROS_DISTROS
-
-PAIRS = "pimbot:name=value"
-"""Marks a field holding `name=value` strings; a --config file may give it a table."""
 
 CONTROLLERS = ("benign", "admo", "admo_code")
 """`pimbot.profiling.CONTROLLERS` (that module imports JAX)."""
@@ -39,31 +36,6 @@ TRACKERS = ("tensorboard", "wandb", "mlflow")
 MAX_PROFILED_WIDTH = 2**16
 """The largest hidden layer (and update period) `pimbot profile` takes: 65 536 units already
 make a controller of gigabytes; a larger number is a typo that would exhaust memory."""
-
-
-@dataclasses.dataclass(frozen=True)
-class Registered:
-    """Marks an option whose values are names in one of pimbot's registries."""
-
-    registry: Literal["envs", "learners", "attacks", "defenses"]
-    """The registry (`pimbot.envs`, ...); `pimbot <registry>` lists its names."""
-
-
-@dataclasses.dataclass(frozen=True)
-class Spelling:
-    """An option's flag when it is not `--field-name`, and its aliases (as given to tyro)."""
-
-    name: str | None = None
-    aliases: tuple[str, ...] = ()
-
-
-@dataclasses.dataclass(frozen=True)
-class FromRun:
-    """Marks a train option that `--from RUN_DIR` takes from the saved `RunConfig` field
-    `field` (through `convert`); an option named like a RunConfig field needs no mark."""
-
-    field: str
-    convert: Callable[[Any], Any] = dict
 
 
 def _option(metavar: str, *, name: str | None = None, aliases: tuple[str, ...] = ()) -> tuple:
@@ -386,10 +358,6 @@ class Report(Command):
         from pimbot.cli import handlers
 
         return handlers.cmd_report(self)
-
-
-CHECK_ENV = "escape_room-v0"
-"""The env `pimbot check` runs attacks, defenses and learners on where the file has none."""
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

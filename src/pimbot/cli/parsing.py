@@ -22,7 +22,7 @@ from typing import Any
 
 import tyro
 
-from pimbot.cli import commands
+from pimbot.cli.options import PAIRS, FromRun, Registered, Spelling
 from pimbot.errors import InvalidParameter
 
 HELP = ("-h", "--help")
@@ -159,7 +159,7 @@ def _convert(field: str, hint, value: Any, source: str) -> Any:
     Registry names are checked later, once the plugins have loaded (`check_names`).
     """
     kind, metadata = _strip(hint)
-    if commands.PAIRS in metadata:
+    if PAIRS in metadata:
         return _pairs(field, value, source)
     kind, optional = _without_none(kind)
     if value is None and optional:
@@ -186,7 +186,7 @@ def _convert(field: str, hint, value: Any, source: str) -> Any:
 
 def _option_name(field: dataclasses.Field, metadata: tuple) -> str:
     """The option's name as the command line spells it, without `--` (`from` for from_run)."""
-    spelling = _marker(metadata, commands.Spelling)
+    spelling = _marker(metadata, Spelling)
     return spelling.name if spelling is not None and spelling.name else field.name
 
 
@@ -223,7 +223,7 @@ def saved_values(cls: type, run_config) -> dict[str, Any]:
     saved = {field.name for field in dataclasses.fields(run_config)}
     values = {}
     for field, _, metadata in _fields(cls):
-        source = _marker(metadata, commands.FromRun)
+        source = _marker(metadata, FromRun)
         if source is not None:
             values[field.name] = source.convert(getattr(run_config, source.field))
         elif field.name in saved:
@@ -235,7 +235,7 @@ def check_names(command, source: str | None = None) -> None:
     """Raises UsageError unless every registry name in `command` is registered (plugins
     loaded first); the message lists the allowed names and the closest ones."""
     for field, _, metadata in _fields(type(command)):
-        marker = _marker(metadata, commands.Registered)
+        marker = _marker(metadata, Registered)
         value = getattr(command, field.name)
         if marker is None or value is None or value is tyro.MISSING:
             continue
@@ -273,7 +273,7 @@ def _grammar(cls: type, default) -> list[_Option]:
             arity = "append" if tyro.conf.UseAppendAction in metadata else "many"
         else:
             arity = "one"
-        spelling = _marker(metadata, commands.Spelling)
+        spelling = _marker(metadata, Spelling)
         names = [_option_name(field, metadata), *(spelling.aliases if spelling else ())]
         names = [n.lstrip("-") for n in names]
         names += [f"no-{n}" for n in names] if arity == "flag" else []

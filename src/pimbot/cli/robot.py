@@ -14,6 +14,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from pimbot.cli.interrupts import Terminated
+
 RENDERERS = ("auto", "mujoco", "matplotlib")
 
 
@@ -276,8 +278,6 @@ def cmd_serve(args) -> int:
     try:
         policy = serve.trained_policy(loaded, args.seed_index)
     except KeyboardInterrupt as interrupt:  # compiling: no robot was driven yet
-        from pimbot.cli import Terminated
-
         if audit is not None:
             audit.close()
         print("serve: interrupted before any robot was driven")
@@ -294,8 +294,6 @@ def cmd_serve(args) -> int:
     try:
         report = serve.serve_episode(policy, cfg, wire, timing, layout, audit)
     except KeyboardInterrupt as interrupt:  # the robots are stopped, and it said so
-        from pimbot.cli import Terminated
-
         report = getattr(interrupt, "serve_report", None)
         if report is not None:
             _write_json(args.json, report.summary())
