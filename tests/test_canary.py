@@ -161,6 +161,46 @@ def test_a_learner_hook_point_never_consulted_is_reported(tmp_path, capsys):
     ]
 
 
+SIGN_LINE = "    sign = attack.policy_sign(state.attack_state, n)\n"
+
+
+def _actor_critic(tmp_path, sign_used: bool) -> Path:
+    """examples/plugins/actor_critic.py, or the same learner asking `policy_sign` and
+    dropping its answer (every agent then steps with sign +1)."""
+    source = (EXAMPLES / "actor_critic.py").read_text()
+    assert source.count(SIGN_LINE) == 1
+    if not sign_used:
+        ignored = "    attack.policy_sign(state.attack_state, n)\n    sign = jnp.ones((n,))\n"
+        source = source.replace(SIGN_LINE, ignored)
+    plugin = tmp_path / f"actor_critic_{'used' if sign_used else 'ignored'}.py"
+    plugin.write_text(source)
+    return plugin
+
+
+@pytest.mark.parametrize("sign_used", [True, False])
+def test_a_learner_that_ignores_a_hook_output_is_reported(tmp_path, capsys, sign_used):
+    plugin = _actor_critic(tmp_path, sign_used)
+    argv = ["check", str(plugin), "--seeds", "1", "--iterations", "5"]
+    assert cli.main(argv) == (0 if sign_used else 1)
+    out = capsys.readouterr().out
+    rows = _rows(out)
+    assert int(rows["policy_sign"][3]) > 0  # consulted either way
+    assert rows["policy_sign"][6] == ("yes" if sign_used else "no")
+    for hook in ("act", "learning_rewards", "adversary_step", "observe"):
+        assert rows[hook][6] == "yes", rows[hook]
+    problems = [line for line in out.splitlines() if line.startswith("problem:")]
+    if sign_used:
+        assert problems == []
+        assert "ok: learner actor_critic: trained" in out
+        assert "each one's output perturbed" in out
+    else:
+        assert problems == [
+            "problem: learner actor_critic: consults hook point policy_sign but ignores what "
+            "it returns: with its output perturbed (the adversary's sign flipped) the "
+            "learner's state and metrics after 5 iterations are the same, bit for bit"
+        ]
+
+
 @pytest.mark.parametrize(
     ("source", "expected"),
     [(None, "no such file"), ("x = 1\n", "registers no env, learner, attack or defense")],

@@ -1,8 +1,9 @@
 """`pimbot check FILE.py`: load a plugin file, run its canary, print the table.
 
 Exit status 0 when every hook of every part ran and changed what the learner does (and
-every learner and env trained), 1 with one line per problem otherwise, 2 for bad input
-(no such file, a file that registers nothing: `pimbot.training.canary`).
+every learner and env trained; an "ok" line per part says what was checked), 1 with one
+line per problem otherwise, 2 for bad input (no such file, a file that registers
+nothing: `pimbot.training.canary`).
 """
 
 from __future__ import annotations
@@ -42,5 +43,6 @@ def cmd_check(args: Check) -> int:
         print(f"problem: {problem}")
     if result.problems:
         return 1
-    print("ok: every hook ran, each attack and defense hook changed what the learner does")
+    for checked in result.checked:
+        print(f"ok: {checked}")
     return 0

@@ -9,16 +9,24 @@ metrics.csv. The canary tells them apart, in memory, writing nothing:
   in how many of those calls its output differed from the no-op output for the same inputs
   (what the base `Attack` or `Defense` returns). The run is made twice from the same keys,
   once with the hooks' own outputs and once with their no-op outputs (one compiled
-  program), and the two runs' metrics are compared. A defense runs clean and, where one
-  is named, under an attack too.
+  program), and the two runs' metrics are compared. With several hooks, each hook also
+  acts alone (the others answer their no-op) in a run of its own: its output must change
+  the learner's final state or metrics, so an output the learner ignores is found. A
+  defense runs clean and, where one is named, under an attack too.
 * each **learner** trains on the env with a probe attack and a probe defense that do
   nothing at every hook point the learner declares, so each point it lists is counted
-  where the learner actually consults it; its parameters must change.
+  where the learner actually consults it; its parameters must change. Then, in one run
+  per hook point, that probe's output is perturbed (`canary_probes.PERTURB`): the
+  learner's final state or metrics must differ from the unperturbed run's, bit for bit,
+  or the learner asks the hook and ignores its answer.
 * each **env** trains a learner for a few iterations; its metrics must be finite.
 
+All runs of a part share one compiled program: what they change are traced numbers.
+
 A problem is one line: a hook that never ran, a hook whose output never differed from
-doing nothing (in any setting), a learner that never consults a hook point it declares or
-whose parameters did not move, non-finite metrics. As Gymnasium's `env_checker` and
+doing nothing (in any setting), a hook output that changed nothing the learner kept, a
+learner that never consults a hook point it declares, ignores what one returns, or whose
+parameters did not move, non-finite metrics. As Gymnasium's `env_checker` and
 PettingZoo's `parallel_api_test` call an env and check what comes back, this calls a
 plugin's hooks inside the program that trains (docs/extending.md, "Checking what a plugin
 does: pimbot check").
@@ -97,6 +105,10 @@ class Row:
     probes do nothing by design)."""
     run_differs: bool | None = None
     """Whether the paired runs' metrics differ (with the hooks' outputs vs the no-op's)."""
+    used: bool | None = None
+    """Whether the learner's final state or metrics changed with this hook's output: an
+    attack's or defense's hook acting alone against none acting; a learner's hook point
+    with its output perturbed (`canary_probes.PERTURB`) against not."""
     note: str = ""
 
 
@@ -104,6 +116,8 @@ class Row:
 class Result:
     rows: tuple[Row, ...]
     problems: tuple[str, ...]
+    checked: tuple[str, ...] = ()
+    """What was checked of each part without a problem, a line each."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -142,6 +156,26 @@ def registered_in(path: str) -> Parts:
 # --- one paired run ----------------------------------------------------------------------
 
 
+def _same(a, b) -> bool:
+    pairs = zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True)
+    return all(np.array_equal(x, y, equal_nan=True) for x, y in pairs)
+
+
+@dataclasses.dataclass(frozen=True)
+class Trained:
+    """One canary run: its metrics, every seed's final learner state, and whether the
+    learner's parameters moved."""
+
+    metrics: Any
+    states: Any
+    params_moved: bool
+
+    def same_as(self, other: Trained) -> bool:
+        """Whether the two runs (from the same keys) ended in the same learner state with
+        the same metrics, bit for bit."""
+        return _same(self.metrics, other.metrics) and _same(self.states, other.states)
+
+
 @dataclasses.dataclass(frozen=True)
 class Outcome:
     """A paired run: the metrics with the hooks' own outputs and with the no-op's, and
@@ -153,10 +187,7 @@ class Outcome:
 
     @property
     def differs(self) -> bool:
-        pairs = zip(
-            jax.tree.leaves(self.metrics_on), jax.tree.leaves(self.metrics_off), strict=True
-        )
-        return any(not np.array_equal(a, b, equal_nan=True) for a, b in pairs)
+        return not _same(self.metrics_on, self.metrics_off)
 
     @property
     def finite(self) -> bool:
@@ -170,12 +201,14 @@ class Outcome:
 Build = Callable[[bool], tuple[Any, tuple]]
 """flag -> (attack, defenses) of one half of a paired run."""
 
+Variant = tuple[str, Callable[[], tuple[Any, tuple]]]
+"""(what it is, for the progress lines; () -> its (attack, defenses))."""
 
-def paired_run(resolved, build: Build, size: Size, paired: bool = True) -> Outcome:
-    """Trains `resolved`'s learner `size.iterations` iterations on `size.seeds` seeds twice
-    from the same keys: with `build(True)`'s attack and defenses, then `build(False)`'s
-    (one compiled program: they differ only in numbers); once, with `build(True)`'s, unless
-    `paired` (the second half's metrics are then the first's). Writes nothing.
+
+def train_variants(resolved, variants: list[Variant], size: Size) -> list[Trained]:
+    """Trains `resolved`'s learner `size.iterations` iterations on `size.seeds` seeds once
+    per variant, every variant from the same keys (one compiled program: the variants
+    differ only in numbers). Writes nothing.
 
     The seeds run one after another through a program compiled for one seed: under a
     vmap over seeds, a hook whose inputs are the same for every seed would be executed
@@ -183,15 +216,14 @@ def paired_run(resolved, build: Build, size: Size, paired: bool = True) -> Outco
     init = runner.make_init_fn(resolved)
     chunk = runner.make_chunk_fn(resolved, 1)
     shared = runner.program_args(resolved)[2:]  # env, its optimum's numbers, learner config
-    results, moved = [], False
-    for on in (True, False) if paired else (True,):
-        args = (*build(on), *shared)
-        per_seed = []
+    results = []
+    for what, build in variants:
+        args = (*build(), *shared)
+        per_seed, finals, moved = [], [], False
         for seed in range(size.seeds):
             if size.progress:
-                half = ("with its hooks" if on else "hooks as no-ops") if paired else "trained"
                 print(
-                    f"check: {runner.run_title(resolved)}, {half}: seed {seed + 1}/{size.seeds}, "
+                    f"check: {runner.run_title(resolved)}, {what}: seed {seed + 1}/{size.seeds}, "
                     f"{size.iterations} iterations",
                     file=sys.stderr,
                     flush=True,
@@ -202,10 +234,23 @@ def paired_run(resolved, build: Build, size: Size, paired: bool = True) -> Outco
             eval_roots = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
             states, metrics = chunk(states, eval_roots, *args)
             per_seed.append(jax.device_get(metrics))
-            moved = moved or (on and _params_moved(before, jax.device_get(states)))
-        results.append(jax.tree.map(lambda *x: np.concatenate(x), *per_seed))
+            finals.append(jax.device_get(states))
+            moved = moved or _params_moved(before, finals[-1])
+        joined = [jax.tree.map(lambda *x: np.concatenate(x), *runs) for runs in (per_seed, finals)]
+        results.append(Trained(*joined, moved))
     jax.effects_barrier()  # every hook's callback has run
-    return Outcome(results[0], results[-1], moved)
+    return results
+
+
+def paired_run(resolved, build: Build, size: Size, paired: bool = True) -> Outcome:
+    """`train_variants` with `build(True)`'s attack and defenses, then `build(False)`'s; once,
+    with `build(True)`'s, unless `paired` (the second half's metrics are then the
+    first's)."""
+    halves = [("with its hooks", lambda: build(True)), ("hooks as no-ops", lambda: build(False))]
+    if not paired:
+        halves = [("trained", lambda: build(True))]
+    runs = train_variants(resolved, halves, size)
+    return Outcome(runs[0].metrics, runs[-1].metrics, runs[0].params_moved)
 
 
 def _params_moved(before, after) -> bool:
@@ -264,7 +309,8 @@ def _setting(resolved, context: str) -> str:
 
 
 def check_attack(name: str, env_id: str, order: list[str], size: Size, tally) -> Result:
-    """The paired run of attack `name`: its hooks counted, with vs without."""
+    """The paired run of attack `name` (its hooks counted, with vs without), and each
+    hook acting alone."""
     part = f"attack {name}"
     resolved, why = first_run(env_id, order, size, attack=name)
     if resolved is None:
@@ -272,17 +318,18 @@ def check_attack(name: str, env_id: str, order: list[str], size: Size, tally) ->
     hooks = _own_hooks(resolved.attack, resolved.learner.attack_hooks)
     setting = _setting(resolved, "no defense")
 
-    def build(on: bool):
-        counted = canary_probes.instrument(resolved.attack, hooks, tally, f"{part} {setting}", on)
+    def build(how: canary_probes.Setting):
+        label = f"{part} {setting}"
+        counted = canary_probes.instrument(resolved.attack, hooks, tally, label, how)
         return counted, resolved.defenses
 
-    outcome = paired_run(resolved, build, size)
-    rows = _hook_rows(part, setting, hooks, tally, outcome)
-    return Result(rows, _hook_problems(part, rows))
+    rows = _proved_rows(part, setting, hooks, tally, (resolved, build, size))
+    return _hook_result(part, rows)
 
 
 def check_defense(name: str, env_id: str, order, options: Options, tally) -> Result:
-    """The paired runs of defense `name`: clean, and under `options.defense_attack`."""
+    """The paired runs of defense `name`, and each hook acting alone: clean, and under
+    `options.defense_attack`."""
     part, rows, problems = f"defense {name}", [], []
     contexts = [None] + ([options.defense_attack] if options.defense_attack else [])
     for attack in contexts:
@@ -297,13 +344,13 @@ def check_defense(name: str, env_id: str, order, options: Options, tally) -> Res
         hooks = _own_hooks(defense, resolved.learner.defense_hooks)
         setting = _setting(resolved, f"under attack {attack}" if attack else "clean")
 
-        def build(on: bool, resolved=resolved, defense=defense, hooks=hooks, label=setting):
-            counted = canary_probes.instrument(defense, hooks, tally, f"{part} {label}", on)
+        def build(how, resolved=resolved, defense=defense, hooks=hooks, label=setting):
+            counted = canary_probes.instrument(defense, hooks, tally, f"{part} {label}", how)
             return resolved.attack, (counted,)
 
-        outcome = paired_run(resolved, build, options.size)
-        rows += _hook_rows(part, setting, hooks, tally, outcome)
-    return Result(tuple(rows), tuple(problems) + _hook_problems(part, rows))
+        rows += _proved_rows(part, setting, hooks, tally, (resolved, build, options.size))
+    result = _hook_result(part, rows)
+    return Result(result.rows, tuple(problems) + result.problems, result.checked)
 
 
 def _own_hooks(obj, consulted: tuple[str, ...]) -> tuple[str, ...]:
@@ -313,34 +360,72 @@ def _own_hooks(obj, consulted: tuple[str, ...]) -> tuple[str, ...]:
     return tuple(dict.fromkeys([*obj.hooks, *optional]))
 
 
-def _hook_rows(part, setting, hooks, tally, outcome: Outcome) -> tuple[Row, ...]:
+def _proved_rows(part, setting, hooks, tally, run) -> tuple[Row, ...]:
+    """A row per hook: the paired run (every hook's own output vs every no-op's, counted)
+    and, with several hooks, one run per hook with only its own output; `run` is
+    (resolved, build(Setting) -> (attack, defenses), size)."""
+    resolved, build, size = run
+    Setting = canary_probes.Setting
+    variants = [
+        ("with its hooks", lambda: build(Setting(on=True))),
+        ("hooks as no-ops", lambda: build(Setting(on=False))),
+    ]
+    if len(hooks) > 1:
+        variants += [
+            (
+                f"only {hook} acting",
+                lambda h=hook: build(Setting(tuple(h == k for k in hooks), count=False)),
+            )
+            for hook in hooks
+        ]
+    on, off, *alone = train_variants(resolved, variants, size)
+    outcome = Outcome(on.metrics, off.metrics, on.params_moved)
     note = f"success {outcome.success():.2f} vs {outcome.success(False):.2f} without"
     rows = []
-    for hook in hooks:
+    for hook, acted in zip(hooks, alone or [on], strict=True):
         calls, changed = tally.of(f"{part} {setting}", hook)
-        rows.append(Row(part, setting, hook, calls, changed, outcome.differs, note))
+        used = not acted.same_as(off)
+        rows.append(Row(part, setting, hook, calls, changed, outcome.differs, used, note))
     return tuple(rows)
 
 
-def _hook_problems(part: str, rows) -> tuple[str, ...]:
-    """A hook that never ran in some setting; one whose output never changed in any."""
+def _hook_result(part: str, rows) -> Result:
+    """A hook that never ran in some setting; one whose output never changed in any; one
+    whose changed output changed nothing the learner kept or measured. Else what was
+    checked, a line."""
     problems = []
     for hook in dict.fromkeys(r.hook for r in rows if r.calls is not None):
         mine = [r for r in rows if r.hook == hook]
         for row in mine:
             if not row.calls:
                 problems.append(f"{part}: hook {hook} never ran ({row.setting})")
+            elif row.changed and not row.used:
+                problems.append(
+                    f"{part}: hook {hook} returned something other than doing nothing "
+                    f"{row.changed} times, yet with it alone acting the learner ended in the "
+                    f"same state with the same metrics as with nothing acting ({row.setting})"
+                )
         if all(r.calls for r in mine) and not any(r.changed for r in mine):
             calls = sum(r.calls for r in mine)
             problems.append(
                 f"{part}: hook {hook} ran {calls} times and its output never differed from "
                 "doing nothing (the base class's output for the same inputs)"
             )
-    return tuple(problems)
+    if problems:
+        return Result(tuple(rows), tuple(problems))
+    hooks = ", ".join(dict.fromkeys(r.hook for r in rows if r.calls is not None))
+    settings = "; ".join(dict.fromkeys(r.setting for r in rows if r.calls is not None))
+    checked = (
+        f"{part}: each hook ({hooks}) ran, returned something other than doing nothing, and "
+        f"acting alone changed the learner's final state or metrics ({settings})"
+    )
+    return Result(tuple(rows), (), (checked,))
 
 
 def check_learner(name: str, env_id: str, size: Size, tally) -> Result:
-    """Learner `name` trains with probes at every hook point it declares; each is counted."""
+    """Learner `name` trains with probes at every hook point it declares: each is counted,
+    and each probe's output perturbed in a run of its own must change the learner's final
+    state or metrics."""
     part = f"learner {name}"
     try:
         resolved = resolved_run(env_id, name, size)
@@ -348,25 +433,54 @@ def check_learner(name: str, env_id: str, size: Size, tally) -> Result:
         return Result((), (f"{part}: cannot run on {env_id}: {error}",))
     definition = resolved.learner
     attack_hooks, defense_hooks = definition.attack_hooks, definition.defense_hooks
+    hooks = (*attack_hooks, *defense_hooks)
 
-    def build(on: bool):
-        attack = canary_probes.probe_attack(attack_hooks)
-        defense = canary_probes.probe_defense(defense_hooks)
-        counted_attack = canary_probes.instrument(attack, attack_hooks, tally, part, on)
-        counted_defense = canary_probes.instrument(defense, defense_hooks, tally, part, on)
+    attack = canary_probes.probe_attack(attack_hooks)  # made once: one program for all runs
+    defense = canary_probes.probe_defense(defense_hooks)
+
+    def build(how: canary_probes.Setting):
+        counted_attack = canary_probes.instrument(attack, attack_hooks, tally, part, how)
+        counted_defense = canary_probes.instrument(defense, defense_hooks, tally, part, how)
         return counted_attack, (counted_defense,) if defense_hooks else ()
 
-    outcome = paired_run(resolved, build, size, paired=False)
+    variants = [("probes doing nothing", lambda: build(canary_probes.Setting()))]
+    variants += [
+        (
+            f"{hook}'s output perturbed",
+            lambda h=hook: build(canary_probes.Setting(nudge=h, count=False)),
+        )
+        for hook in hooks
+    ]
+    base, *nudged = train_variants(resolved, variants, size)
+    outcome = Outcome(base.metrics, base.metrics, base.params_moved)
     setting = _setting(resolved, "probes doing nothing")
     rows = [Row(part, setting, "(trains)", note=_trained_note(outcome))]
-    for hook in (*attack_hooks, *defense_hooks):
+    for hook, run in zip(hooks, nudged, strict=True):
         calls, _ = tally.of(part, hook)
-        rows.append(Row(part, setting, hook, calls))
-    problems = [
-        f"{part}: declares hook point {r.hook} but never consulted it" for r in rows if r.calls == 0
-    ]
-    problems += _training_problems(part, outcome)
-    return Result(tuple(rows), tuple(problems))
+        note = f"perturbed: {canary_probes.PERTURBED_AS[hook]}"
+        rows.append(Row(part, setting, hook, calls, used=not run.same_as(base), note=note))
+    problems = _learner_hook_problems(part, rows, size) + _training_problems(part, outcome)
+    checked = (
+        f"{part}: trained ({_trained_note(outcome)}); consulted every hook point it declares "
+        f"({', '.join(hooks)}), and with each one's output perturbed in a run of its own its "
+        f"final state or metrics changed ({setting})"
+    )
+    return Result(tuple(rows), problems, () if problems else (checked,))
+
+
+def _learner_hook_problems(part: str, rows, size: Size) -> tuple[str, ...]:
+    """A hook point declared and never consulted; one consulted whose output is ignored."""
+    problems = []
+    for row in rows[1:]:
+        if row.calls == 0:
+            problems.append(f"{part}: declares hook point {row.hook} but never consulted it")
+        elif not row.used:
+            problems.append(
+                f"{part}: consults hook point {row.hook} but ignores what it returns: with its "
+                f"output perturbed ({canary_probes.PERTURBED_AS[row.hook]}) the learner's "
+                f"state and metrics after {size.iterations} iterations are the same, bit for bit"
+            )
+    return tuple(problems)
 
 
 def check_env(env_id: str, order: list[str], size: Size) -> Result:
@@ -376,8 +490,11 @@ def check_env(env_id: str, order: list[str], size: Size) -> Result:
     if resolved is None:
         return Result((), (f"{part}: no learner can run on it: {why}",))
     outcome = paired_run(resolved, lambda on: (resolved.attack, resolved.defenses), size, False)
-    row = Row(part, _setting(resolved, "clean"), "(trains)", note=_trained_note(outcome))
-    return Result((row,), _training_problems(part, outcome))
+    setting = _setting(resolved, "clean")
+    row = Row(part, setting, "(trains)", note=_trained_note(outcome))
+    problems = _training_problems(part, outcome)
+    checked = f"{part}: a learner trained on it ({_trained_note(outcome)}; {setting})"
+    return Result((row,), problems, () if problems else (checked,))
 
 
 def _trained_note(outcome: Outcome) -> str:
@@ -443,18 +560,23 @@ def check_file(path: str, options: Options) -> Result:
     results += [check_attack(a, env_id, order, options.size, tally) for a in parts.attacks]
     results += [check_defense(d, env_id, order, options, tally) for d in parts.defenses]
     rows = tuple(row for r in results for row in r.rows)
-    return Result(rows, tuple(p for r in results for p in r.problems))
+    problems = tuple(p for r in results for p in r.problems)
+    return Result(rows, problems, tuple(c for r in results for c in r.checked))
+
+
+def _yes_no(flag: bool | None) -> str:
+    return "-" if flag is None else ("yes" if flag else "no")
 
 
 def table(result: Result) -> str:
     """The rows as an aligned text table."""
-    head = ("part", "setting", "hook", "calls", "changed", "run differs", "")
+    head = ("part", "setting", "hook", "calls", "changed", "run differs", "used", "")
     lines = [head]
     for r in result.rows:
         calls = "-" if r.calls is None else str(r.calls)
         changed = "-" if r.changed is None else str(r.changed)
-        differs = "-" if r.run_differs is None else ("yes" if r.run_differs else "no")
-        lines.append((r.part, r.setting, r.hook, calls, changed, differs, r.note))
+        differs, used = (_yes_no(r.run_differs), _yes_no(r.used))
+        lines.append((r.part, r.setting, r.hook, calls, changed, differs, used, r.note))
     widths = [max(len(line[i]) for line in lines) for i in range(len(head))]
     return "\n".join(
         "  ".join(cell.ljust(w) for cell, w in zip(line, widths, strict=True)).rstrip()
