@@ -114,7 +114,8 @@ def fake_reciprocator_runs(runs_dir: Path) -> None:
         result |= {"final_success": 0.5 * seed, "eval_period": 100, "eval_episodes": 10}
         result |= {"stubbed_modules": ["tensorflow"], "wall_s": 900.0, "cpu_s": 800.0}
         result |= {"ms_per_episode": 180.0, "torch": "2.13.0+cpu", "torch_threads": 1}
-        result |= {"python": "3.11.7"}
+        result |= {"python": "3.11.7", "adam_moments_nan_from_episode": 1 + seed}
+        result |= {"final_policy_off_uniform": 0.0}
         (folder / "run.json").write_text(json.dumps(result))
 
 
@@ -199,6 +200,9 @@ def test_reciprocator_runs_in_pimbot_columns(imported):
     assert summary["final"]["eval/success"]["per_seed"] == [0.0, 0.5]
     assert summary["iterations"] == 5000
     assert "train/success" in store.read_metrics(er)[0]
+    finding = store.read_json(er / store.CONFIG)["original"]["finding"]
+    assert finding.startswith("its agents stop learning at episode 1–2")
+    assert "uniformly at random (largest |π(a|s₀) − 1/|A|| 0)" in finding
 
 
 PACKAGED = original_code.runs_made_here()

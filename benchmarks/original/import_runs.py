@@ -107,6 +107,23 @@ GROUP_LIO = "made_here_er_25k"
 GROUP_RECIPROCATOR = "made_here_reciprocator"
 
 
+def er_finding(results: list[dict]) -> str | None:
+    """What the harness saw the script's updates do (run_original_reciprocator_er.py, "What
+    the updates do"), where every seed recorded it: None for runs made before it did."""
+    nan_from = [r.get("adam_moments_nan_from_episode") for r in results]
+    off = [r.get("final_policy_off_uniform") for r in results]
+    if not results or any(x is None for x in nan_from + off):
+        return None
+    return (
+        f"its agents stop learning at episode {min(nan_from)}–{max(nan_from)}: the first "
+        "one-step episode has one return, whose std() (ppo.py) is NaN, so Adam's moments "
+        "turn NaN and the script's nan_to_num(0.0) zeroes the weights at every later step; "
+        f"at the last evaluation every agent acts uniformly at random (largest "
+        f"|π(a|s₀) − 1/|A|| {max(off):.2g}); pimbot's normalisation (population std + 1e-8) "
+        "stays finite"
+    )
+
+
 def sha256(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
@@ -545,6 +562,7 @@ def import_reciprocator_er(runs: Path, out: Path, tree: Path) -> dict[str, Any] 
         ],
         "sources": sources,
         "learner_config_note": ER_VOI_NOTE,
+        "finding": er_finding([r for _, r in complete]),
         "environment": (
             f"Python {first['python']}, torch {first['torch']} on the CPU, "
             f"{first['torch_threads']} thread (setup_reciprocator.sh's venv)"

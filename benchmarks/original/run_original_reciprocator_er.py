@@ -38,9 +38,21 @@ cpu``). What the harness adds, all from outside:
   evaluation. ``success`` = the share of evaluation episodes that end with ``done``
   code 1, i.e. the team escaped (pimbot's ``eval/success``).
 
+* **What the updates do.** The script's ``PPO.update`` normalises an episode's returns
+  by their standard deviation; an episode that ends after one step has one return, whose
+  ``std()`` is NaN, so the loss, the gradients and Adam's moments become NaN, and the
+  script's own ``nan_to_num(0.0)`` after each step sets every weight the loss reaches to
+  0. The moments stay NaN, so every later step does the same: from then on each agent
+  acts uniformly at random. After every episode's updates the harness reads (changing
+  nothing) whether any agent's Adam moments hold a NaN, and, at each evaluation, how far
+  the acting policies are from uniform at the start of an episode (``policy_off_uniform``:
+  the largest |π_i(a|s₀) − 1/|A||). ``run.json`` records the first one-step training
+  episode and the first episode after which the moments were NaN.
+
 Writes ``DIR/eval.csv`` (one row per evaluation: ``episode``, ``success``,
 ``success_argmax``, ``steps``, ``return_env_i``, ``steps_argmax``,
-``return_env_argmax_i``, ``train_success``, ``wall_s``, ``cpu_s``) and ``DIR/run.json``,
+``return_env_argmax_i``, ``train_success``, ``policy_off_uniform``, ``wall_s``,
+``cpu_s``) and ``DIR/run.json``,
 and prints one line ``ORIGINAL_RECIPROCATOR_ER_RUN {json}``. The script's own prints
 (VoI and reciprocal-reward statistics every episode) go to ``DIR/stdout.log.gz``.
 """
@@ -150,7 +162,9 @@ def main() -> None:
 
     args.out.mkdir(parents=True, exist_ok=True)
     state = {"evaluating": False, "episodes": 0, "env": None, "agents": []}
+    weights = {"nan_from": None}
     train_codes: list[int] = []
+    train_steps: list[int] = []
     eval_codes: list[int] = []
     rows: list[dict] = []
     generator = torch.Generator().manual_seed(args.seed)
@@ -162,6 +176,8 @@ def main() -> None:
         obs, rewards, done = original_step(self, actions, given_rewards)
         if done:
             (eval_codes if state["evaluating"] else train_codes).append(int(done))
+            if not state["evaluating"]:
+                train_steps.append(self.steps)
         return obs, rewards, done
 
     original_wrapper_init = run_er.EnvWrapper.__init__
@@ -217,6 +233,7 @@ def main() -> None:
             "steps_argmax": steps_argmax,
             **{f"return_env_argmax_{i}": r for i, r in enumerate(returns_argmax)},
             "train_success": sum(code == 1 for code in window) / max(len(window), 1),
+            "policy_off_uniform": off_uniform(),
             "wall_s": time.perf_counter() - wall0,
             "cpu_s": time.process_time() - cpu0,
         }
@@ -230,9 +247,29 @@ def main() -> None:
 
     original_episode_reset = ValueOfInfluence.episode_reset
 
+    def read_moments():
+        """Notes the first episode after whose updates an agent's Adam moments hold a NaN."""
+        if weights["nan_from"] is not None:
+            return
+        for agent in state["agents"]:
+            for moments in agent.ppo.optimizer.state.values():
+                if any(bool(torch.isnan(m).any()) for m in moments.values() if torch.is_tensor(m)):
+                    weights["nan_from"] = state["episodes"]
+                    return
+
+    def off_uniform() -> float:
+        """max_i max_a |π_i(a | s₀) − 1/|A||, the acting policies at an episode's start."""
+        obs = state["env"].reset()
+        with torch.no_grad():
+            probs = [
+                agent.ppo.policy_old.actor(obs[i])[0] for i, agent in enumerate(state["agents"])
+            ]
+        return max(float((p - 1.0 / p.numel()).abs().max()) for p in probs)
+
     def hooked_episode_reset(self, *a, **k):
         result = original_episode_reset(self, *a, **k)
         state["episodes"] += 1
+        read_moments()
         if state["episodes"] % args.eval_period == 0:
             evaluate()
         return result
@@ -261,6 +298,11 @@ def main() -> None:
         "training_episodes_escaped": sum(code == 1 for code in train_codes),
         "final_success": float(rows[-1]["success"]),
         "final_success_argmax": float(rows[-1]["success_argmax"]),
+        "first_one_step_episode": next(
+            (i + 1 for i, steps in enumerate(train_steps) if steps == 1), None
+        ),
+        "adam_moments_nan_from_episode": weights["nan_from"],
+        "final_policy_off_uniform": float(rows[-1]["policy_off_uniform"]),
         "eval_period": args.eval_period,
         "eval_episodes": args.eval_episodes,
         "n_agents": len(state["agents"]),

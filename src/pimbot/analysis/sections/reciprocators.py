@@ -341,7 +341,8 @@ def original_code(originals, run: RunRecord) -> tuple[RunRecord | None, str]:
     """The original code's run at `run`'s exact settings (None: there is none) and a clause
     naming every original-code run of `run`'s env, learner and attack with its final
     success, and for one at other settings what differs (`RunTable.originals_for` and
-    `originals_elsewhere`, `settings_difference`)."""
+    `originals_elsewhere`, `settings_difference`), with what was seen of its learning
+    (`finding`)."""
     table = RunTable((), tuple(originals))
     same = table.originals_for(run)
     near = [o for o in table.originals_elsewhere(run) if o.per_seed("eval/success").size]
@@ -349,9 +350,16 @@ def original_code(originals, run: RunRecord) -> tuple[RunRecord | None, str]:
         f"the original code ({o.name}, {o.seeds} seeds"
         + (f"; {settings_difference(o, run)}" if o in near else ", the same settings")
         + f"): {estimate(o.per_seed('eval/success'))}"
+        + (f" — {finding(o)}" if finding(o) else "")
         for o in same + near
     ]
     return (same[0] if same else None), "; ".join(texts)
+
+
+def finding(original: RunRecord) -> str | None:
+    """What was seen of an original-code run's learning when it was run here (config.json
+    `original.finding`, written by benchmarks/original/import_runs.py), else None."""
+    return (original.config.get("original") or {}).get("finding")
 
 
 def with_original(verdict: verdicts.Verdict, originals, run: RunRecord) -> verdicts.Verdict:
