@@ -10,6 +10,7 @@ attack's and defenses' numbers left out) and its group key
 tasks). Then the groups, what tells them apart, and the relative training cost
 of each.
 
+--groups I,J limits what is lowered, compiled or timed to those groups.
 --verify lowers every job's chunk as the sweep would run it (the group's
 `Strategies` form where the group mixes strategy attacks) and checks that the
 jobs of a group lower to one program text and different groups to different
@@ -50,6 +51,9 @@ def main() -> None:
         "--train-time", action="store_true", help="also time each group's chunk (see above)"
     )
     parser.add_argument("--flops", action="store_true", help="count each group's flops")
+    parser.add_argument(
+        "--groups", metavar="I,J", help="compile/time only these groups (numbers as printed)"
+    )
     parser.add_argument(
         "--timings", metavar="DIR", help="instead: where a finished suite directory's time went"
     )
@@ -111,7 +115,8 @@ def main() -> None:
         print(f"{head}: {describe(task[0])}")
         print(f"     attacks: {', '.join(kinds)}")
         print(f"     jobs: {', '.join(j.name for j in task)}")
-        if args.verify or args.compile or args.flops:
+        chosen = args.groups is None or number in {int(g) for g in args.groups.split(",")}
+        if chosen and (args.verify or args.compile or args.flops):
             for job in task if args.verify else task[:1]:
                 r = resolved[job.name]
                 r = programs.with_attack(r, r.attack.program_form())
