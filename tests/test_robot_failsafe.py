@@ -131,8 +131,9 @@ class Robots:
             self.events.append(json.loads(message.data))
         return got
 
-    def step(self, wait: float = 1.0) -> None:
-        """One lockstep period: odometry out, then the commands (or `wait` s), then move."""
+    def step(self, wait: float = 1.0, move: bool = True) -> None:
+        """One lockstep period: odometry out, then the commands (or `wait` s), then move
+        (unless not `move`: the robots hold their poses, so no episode can end)."""
         self.publish()
         answered = np.zeros(self.n, bool)
         deadline = time.perf_counter() + wait
@@ -140,7 +141,7 @@ class Robots:
             answered |= self.take()
             time.sleep(0.0005)
         linear, angular = self.latest[:, 0], self.latest[:, 1]
-        if np.isfinite(self.latest).all():
+        if move and np.isfinite(self.latest).all():
             self.poses[:, 2] += angular * DT
             self.poses[:, 0] += linear * np.cos(self.poses[:, 2]) * DT
             self.poses[:, 1] += linear * np.sin(self.poses[:, 2]) * DT
@@ -292,7 +293,7 @@ def test_ctrl_c_and_sigterm_mid_drive_stop_every_robot(run_dir, tmp_path, signum
     os.kill(serve.pid, signum)
     end = time.perf_counter() + 20
     while serve.poll() is None and time.perf_counter() < end:
-        robots.step(wait=0.05)
+        robots.step(wait=0.05, move=False)  # odometry goes on; no robot reaches the exit
     robots.idle(0.3)
     stdout, stderr = _finish(serve)
     print(
