@@ -746,6 +746,10 @@ def test_c7_code_batch_shortfall_is_classified_by_the_original_code_at_its_setti
     random_level = run("original_random", lambda s: 0.7 + 0.01 * (s % 3), seeds=5)
     judged = dict(reciprocators.c7([ours], (random_level,)).verdict.parts)[part]
     assert judged.causes == (verdicts.PAPER_CODE,) and "ours differ from it" in judged.reason
+    # what was seen of the original's learning when it was run here is named with it
+    random_level.config["original"] = {"finding": "its agents stop learning at episode 1–2"}
+    judged = dict(reciprocators.c7([ours], (random_level,)).verdict.parts)[part]
+    assert "0.708 [0.702, 0.714] — its agents stop learning at episode 1–2:" in judged.reason
     solved = run("original_solved", 0.95, seeds=5)
     judged = dict(reciprocators.c7([ours], (solved,)).verdict.parts)[part]
     assert judged.causes == (verdicts.IMPLEMENTATION,), judged
