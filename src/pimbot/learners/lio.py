@@ -534,12 +534,16 @@ def update(
         defenses, state.defense_state, EpsilonContext(schedule_epsilon, honest)
     )
     # 2. COLLECT τ with θ and η (attack hooks: act, emit)
+    traj = play(env, cfg, attack, state, state.policy, epsilon, key_first, state.env_steps)
+    env_steps = state.env_steps + traj.valid.sum()
     # 3. RECIPIENTS θ → θ̂ on env reward + the incentives they accept (defense hooks:
     #    learning_incentives, after_policy_step; attack hooks: learning_rewards, policy_sign)
-    # 4. COLLECT τ̂ with θ̂
-    (traj, new_traj), (new_policy, env_steps, defense_state, defense_metrics) = explore_twice(
-        env, cfg, attack, defenses, state, epsilon, honest, (key_first, key_second)
+    new_policy, defense_state, defense_metrics = recipients_step(
+        env, cfg, attack, defenses, state, traj, epsilon, honest
     )
+    # 4. COLLECT τ̂ with θ̂
+    new_traj = play(env, cfg, attack, state, new_policy, epsilon, key_second, env_steps)
+    env_steps = env_steps + new_traj.valid.sum()
     # 5. GIVERS η → η' through the recipients' updates, and the cost step; a learning
     #    attack's step replaces the adversary's (attack hook: adversary_step)
     success = episode_metrics(env, traj)["success"]
@@ -574,43 +578,6 @@ def play(env, cfg, attack, state: LIOState, policy, epsilon, key, env_steps) -> 
     give = give_fn(incentive_module, state.incentive, env.num_actions, cfg.incentive_max)
     act = act_fn(policy_module, policy, epsilon)
     return rollout(env, key, act, give, attack, env_steps, state.attack_state)
-
-
-def explore_twice(env, cfg, attack, defenses, state: LIOState, epsilon, honest, keys):
-    """τ with θ, the recipients' step θ → θ̂ on it (`recipients_step`), and τ̂ with θ̂.
-
-    The two episodes are the two turns of one `lax.scan` whose body plays an episode
-    and, on the first turn only (a `lax.cond` on the turn), takes the recipients' step:
-    the episode's scan is compiled once instead of twice, with the same keys and the same
-    values as two calls of `play`.
-
-    Returns:
-        ((τ, τ̂), (θ̂, env steps after τ̂, the defenses' states, their metrics)).
-    """
-
-    def turn(carry, inputs):
-        policy, env_steps, defense_state, metrics = carry
-        key, first = inputs
-        traj = play(env, cfg, attack, state, policy, epsilon, key, env_steps)
-        stepped = jax.lax.cond(
-            first,
-            lambda: recipients_step(env, cfg, attack, defenses, state, traj, epsilon, honest),
-            lambda: (policy, defense_state, metrics),
-        )
-        return (stepped[0], env_steps + traj.valid.sum(), *stepped[1:]), traj
-
-    def first_step():  # the shapes of the recipients' step, for its metrics' zeros
-        traj = play(env, cfg, attack, state, state.policy, epsilon, keys[0], state.env_steps)
-        return recipients_step(env, cfg, attack, defenses, state, traj, epsilon, honest)[2]
-
-    metrics = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), jax.eval_shape(first_step))
-    carry = (state.policy, state.env_steps, state.defense_state, metrics)
-    carry, trajs = jax.lax.scan(turn, carry, (jnp.stack(keys), jnp.array([True, False])))
-    return (at_turn(trajs, 0), at_turn(trajs, 1)), carry
-
-
-def at_turn(trajs: Trajectory, turn: int) -> Trajectory:
-    return jax.tree.map(lambda x: x[turn], trajs)
 
 
 def recipients_step(env, cfg, attack, defenses, state: LIOState, traj: Trajectory, epsilon, honest):
