@@ -39,10 +39,8 @@ def cmd_check(args: Check) -> int:
     print(f"pimbot check {args.file} ({parts}): seeds: {size.seeds}, iterations: {size.iterations}")
     result = canary.check_file(path, options)
     print(canary.table(result))
+    for checked in result.checked:  # the parts without a problem, also beside one with
+        print(f"ok: {checked}")
     for problem in result.problems:
         print(f"problem: {problem}")
-    if result.problems:
-        return 1
-    for checked in result.checked:
-        print(f"ok: {checked}")
-    return 0
+    return 1 if result.problems else 0
