@@ -339,7 +339,7 @@ def test_two_serves_on_one_domain_name_each_other_and_take_none_of_the_others_me
     serves = [_serve(run_dir, domain, "--timeout", "30", json_out=o) for o in outs]
     end = time.perf_counter() + 120
     while any(s.poll() is None for s in serves) and time.perf_counter() < end:
-        robots.step(wait=0.05, move=False)  # no episode can end before they meet
+        robots.step(wait=0.05)
     results = [_finish(s) for s in serves]
     for serve, (stdout, stderr), out in zip(serves, results, outs, strict=True):
         print(stdout, stderr)
