@@ -201,6 +201,15 @@ def test_a_learner_that_ignores_a_hook_output_is_reported(tmp_path, capsys, sign
         ]
 
 
+def test_a_part_with_nothing_counted_gets_no_ok_line():
+    """A defense whose every setting was skipped checked nothing: no ok line for it."""
+    from pimbot.training import canary
+
+    skipped = canary.Row("defense d", "escape_room-v0 · under attack a", "-", note="skipped")
+    result = canary._hook_result("defense d", (skipped,))
+    assert result.problems == () and result.checked == ()
+
+
 @pytest.mark.parametrize(
     ("source", "expected"),
     [(None, "no such file"), ("x = 1\n", "registers no env, learner, attack or defense")],

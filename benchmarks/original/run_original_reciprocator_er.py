@@ -162,7 +162,7 @@ def main() -> None:
 
     args.out.mkdir(parents=True, exist_ok=True)
     state = {"evaluating": False, "episodes": 0, "env": None, "agents": []}
-    weights = {"nan_from": None}
+    moments_seen = {"nan_from": None}
     train_codes: list[int] = []
     train_steps: list[int] = []
     eval_codes: list[int] = []
@@ -249,12 +249,12 @@ def main() -> None:
 
     def read_moments():
         """Notes the first episode after whose updates an agent's Adam moments hold a NaN."""
-        if weights["nan_from"] is not None:
+        if moments_seen["nan_from"] is not None:
             return
         for agent in state["agents"]:
             for moments in agent.ppo.optimizer.state.values():
                 if any(bool(torch.isnan(m).any()) for m in moments.values() if torch.is_tensor(m)):
-                    weights["nan_from"] = state["episodes"]
+                    moments_seen["nan_from"] = state["episodes"]
                     return
 
     def off_uniform() -> float:
@@ -301,7 +301,7 @@ def main() -> None:
         "first_one_step_episode": next(
             (i + 1 for i, steps in enumerate(train_steps) if steps == 1), None
         ),
-        "adam_moments_nan_from_episode": weights["nan_from"],
+        "adam_moments_nan_from_episode": moments_seen["nan_from"],
         "final_policy_off_uniform": float(rows[-1]["policy_off_uniform"]),
         "eval_period": args.eval_period,
         "eval_episodes": args.eval_episodes,

@@ -350,7 +350,8 @@ def check_defense(name: str, env_id: str, order, options: Options, tally) -> Res
 
         rows += _proved_rows(part, setting, hooks, tally, (resolved, build, options.size))
     result = _hook_result(part, rows)
-    return Result(result.rows, tuple(problems) + result.problems, result.checked)
+    checked = () if problems else result.checked  # no ok line beside the part's problem
+    return Result(result.rows, tuple(problems) + result.problems, checked)
 
 
 def _own_hooks(obj, consulted: tuple[str, ...]) -> tuple[str, ...]:
@@ -411,10 +412,11 @@ def _hook_result(part: str, rows) -> Result:
                 f"{part}: hook {hook} ran {calls} times and its output never differed from "
                 "doing nothing (the base class's output for the same inputs)"
             )
-    if problems:
+    counted = [r for r in rows if r.calls is not None]
+    if problems or not counted:  # nothing checked: no ok line
         return Result(tuple(rows), tuple(problems))
-    hooks = ", ".join(dict.fromkeys(r.hook for r in rows if r.calls is not None))
-    settings = "; ".join(dict.fromkeys(r.setting for r in rows if r.calls is not None))
+    hooks = ", ".join(dict.fromkeys(r.hook for r in counted))
+    settings = "; ".join(dict.fromkeys(r.setting for r in counted))
     checked = (
         f"{part}: each hook ({hooks}) ran, returned something other than doing nothing, and "
         f"acting alone changed the learner's final state or metrics ({settings})"
